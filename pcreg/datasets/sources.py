@@ -34,7 +34,7 @@ import re
 import shlex
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Generator, Iterator, TypeVar
+from typing import TYPE_CHECKING, Any, Callable, Generator, Iterator, TypeVar
 
 import numpy as np
 
@@ -375,13 +375,12 @@ class VideoFrames:
         n, chosen = self.count(), len(stem) >= 6 and stem.isdigit() and stem.isascii() and self.selection.chosen(int(stem))
         return chosen and (n is None or (int(stem) - self.selection.start) // self.selection.every < n)
 
-    def frames(self, first: int = 0) -> Iterator[SourceFrame]:
-        """The chosen frames from position ``first`` on, decoded in order: every frame before is decoded
-        too (never converted), so frame ``i`` is the same however the stream got there. From the first frame flagged
-        interlaced on, the frames beside a chosen one pass through a
-        :class:`~pcreg.datasets.deinterlace.Deinterlacer` (a frame not so flagged comes out as it went in), and a
-        chosen frame is handed on once the frame after it is decoded. Frames missing by the times (a Matroska
-        file's) are handed on with the chosen frame after them, in its ``gaps``."""
+    def frames(self, first: int = 0, *, passing: Callable[[int], None] | None = None) -> Iterator[SourceFrame]:
+        """The chosen frames from position ``first`` on, decoded in order: every frame before is decoded too (never converted;
+        ``passing(i)`` told of each), so frame ``i`` is the same however the stream got there. From the first frame flagged
+        interlaced on, the frames beside a chosen one pass through a :class:`~pcreg.datasets.deinterlace.Deinterlacer` (a
+        frame not so flagged comes out as it went in), and a chosen frame is handed on once the frame after it is decoded.
+        Frames missing by the times (a Matroska file's) are handed on with the chosen frame after them, in its ``gaps``."""
         from av.video.reformatter import VideoReformatter
 
         from .deinterlace import Deinterlacer
@@ -389,9 +388,8 @@ class VideoFrames:
 
         s, reading = self.selection, _Reading()
         target = s.index(first)
-        # One converter to RGB for the stream: ``frame.to_ndarray(format=...)`` makes a new one (an FFmpeg scaler
-        # context) for every frame, which costs more than decoding the frame, and a long run's memory grew with
-        # them (about 10 kB a frame at 160x120; docs/benchmarks.md).
+        # One converter to RGB for the stream: ``frame.to_ndarray(format=...)`` makes a new one (an FFmpeg scaler context) for every
+        # frame, which costs more than decoding the frame, and a long run's memory grew with them (10 kB a frame at 160x120).
         rgb, rgba, grey16 = VideoReformatter(), VideoReformatter(), VideoReformatter()  # rgba: the alpha of a format with one; grey16: 16-bit values as stored
         fields: Deinterlacer | None = None
         previous, stopped = None, False
@@ -415,6 +413,8 @@ class VideoFrames:
                                notes + transparent_notes(f"{self.path} frame {name}", alpha) + dark, i in reading.damaged)
 
         for i, frame, turn in self._decoded(reading):
+            if passing is not None and i < target:
+                passing(i)
             stopped = s.stop is not None and i >= s.stop  # the frame after the last: only the next of the one before
             if fields is None and frame.interlaced_frame and not stopped:
                 fields = Deinterlacer()

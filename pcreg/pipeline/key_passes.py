@@ -47,6 +47,7 @@ from ..errors import InputError, OutputError
 from ..runs.files import HIDDEN, label_digest
 from ..runs.kept import read_frame, read_prior, write_frame, write_prior
 from ..runs.truth import empty_counts
+from ..runs.video_file import decoded_to
 
 from .bars import kept_between
 from .engine import PRIOR_STORE_DTYPE, References, Stretch, propagate, stretches, two_sided
@@ -451,7 +452,7 @@ class Decoded:
 
         if self._reading is None or not self._kept or first < self._kept[0].position:
             self.close()
-            self._reading = self.source.frames(first)
+            self._reading = decoded_to(self.source, first)  # a video decoded to ``first`` under a bar
         for frame in list(self._kept):
             if frame.position >= first:
                 yield replace(frame, image=frame.image.copy())  # the caller's own, as a frame read anew

@@ -41,7 +41,7 @@ import os
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Iterator
 
 import numpy as np
 
@@ -55,7 +55,7 @@ from .files import (CARRY, CONFIDENCE, HIDDEN, STEPS, SUGGEST, SUMMARY_FIELDS, a
 from .records import check_record_path, check_recording, name_recording, nothing_to_record, run_recording
 from .state import FORMAT, STATE, inputs_placed, named_otherwise, open_state, read_state, run_frames, run_inputs, write_state
 from .truth import add_rates, count_frame, empty_counts, scored_step
-from .video_file import check_kept, keep_video, labelled_to_end, mark_end
+from .video_file import check_kept, decoded_to, keep_video, labelled_to_end, mark_end
 
 if TYPE_CHECKING:
     from ..datasets.sources import Selection
@@ -186,10 +186,10 @@ class Run:
                 self.commit()
             return self._say_done(request, 0, [0], start=start)
         if start == 1:
-            todo = itertools.chain([second], decoded)
+            todo: Iterator = itertools.chain([second], decoded)
         else:
             decoded.close()
-            todo = frames.frames(start)  # decodes (a video) or skips (a folder) the frames done
+            todo = decoded_to(frames, start)  # decodes (a video, under a bar) or skips (a folder) the frames done
         if start > 1:
             try:
                 prop.resume(start - 1, *self.carry_after(start - 1))

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import hashlib
 from pathlib import Path
+from typing import Generator, Iterator
 
 from ..errors import OutputError
 
@@ -129,3 +130,27 @@ def video_file_problem(state: dict) -> str | None:
     if end is not None and not (type(end) is int and end >= 1 and f is not None):
         return "video_end"
     return None
+
+
+def decoded_to(frames, start: int) -> Iterator:
+    """``frames.frames(start)``: a video's decoded here up to its frame at ``start``, under a bar of the frames decoded
+    on the way (a resumed run decodes its video from the first frame, minutes for an hour of video, where the run's
+    bar of frames stood at 0), the rest as the caller reads them; a folder's as they are."""
+    if frames.kind != "video" or start == 0:
+        return frames.frames(start)
+    from .._runner import progress
+
+    with progress(total=frames.selection.index(start), desc=f"decoding to frame {frames.name(start)}", unit="frame",
+                  disable=None) as bar:
+        todo = frames.frames(start, passing=lambda i: bar.update(1))
+        first = next(todo, None)
+    return todo if first is None else _going_on(first, todo)
+
+
+def _going_on(first, rest: Generator) -> Generator:
+    """``first``, then ``rest``; closing it closes ``rest`` (a video's file)."""
+    try:
+        yield first
+        yield from rest
+    finally:
+        rest.close()

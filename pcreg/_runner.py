@@ -12,7 +12,7 @@ import logging
 import sys
 from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
 from contextlib import contextmanager, nullcontext, suppress
-from typing import Any, Callable, Iterable, Iterator, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator, Sequence
 
 from ._signals import (  # re-exported: the command line, the units and tests import them from here
     _RECEIVED as _RECEIVED,
@@ -34,6 +34,9 @@ from ._signals import (  # re-exported: the command line, the units and tests im
     interrupted as interrupted,
     restore_signals as restore_signals,
 )
+
+if TYPE_CHECKING:
+    from ._progress import Tally
 
 
 class InlineExecutor(Executor):
@@ -62,7 +65,7 @@ def _worker_init(workers: int = 1, parent: int | None = None, steps: Any = None)
     from . import _progress, _signals, _threads
 
     if steps is not None:
-        _progress._sink = steps.put
+        _progress.tell_through(steps.put)
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
@@ -473,41 +476,29 @@ def tick(bar) -> None:
     bar.update(1)
 
 
-def run_units(fn: Callable[[Any], Any], units: Sequence[Any], *, executor: Executor, desc: str = "",
-              on_result: Callable[[Any, Any], None] | None = None, show_progress: bool | None = None,
-              work: tuple[str, Callable[[Any], int]] | None = None) -> list:
+def run_units(fn: Callable[[Any], Any], units: Sequence[Any], *, executor: Executor, desc: "str | Tally" = "",
+              on_result: Callable[[Any, Any], None] | None = None, show_progress: bool | None = None) -> list:
     """Submit ``fn(unit)`` for every unit; call ``on_result(unit, result)`` as each finishes (in the parent).
-    The bar counts the units, or with ``work`` (``(what, estimate)``: ``"frame"`` and each unit's estimate of its
-    frames, say) their work as each unit tells it (:mod:`pcreg._progress`).
+    The bar, named ``desc``, counts the units, or with a :class:`~pcreg._progress.Tally` that estimates it their
+    work as each unit tells it (:mod:`pcreg._progress`).
 
     Returns the results in the order of ``units``.
     """
-    from . import _progress
+    from ._progress import Counting, Tally
 
     futures: dict = {}
     results: list = [None] * len(units)
     inline = isinstance(executor, InlineExecutor)
     health = getattr(executor, "check", None)  # a cluster's: raises once it cannot run the units any more
-    steps = getattr(executor, "steps", None)  # a local pool's pipe of the units' progress
-    sink = _progress._sink
+    tally = desc if isinstance(desc, Tally) else Tally(desc)
     try:
-        estimates = None if work is None else [work[1](u) for u in units]
-        with progress(total=len(units) if estimates is None else sum(estimates), desc=desc, unit="unit" if work is None
-                      else work[0], disable=None if show_progress is None else not show_progress) as bar:
-            counted = None if estimates is None else _progress.Work(bar, estimates)
-            told = counted is not None and not getattr(executor, "remote", False)
-            if inline and counted is not None:
-                _progress._sink = counted.tell
-
-            def read_steps() -> None:
-                while steps is not None and not steps.empty():
-                    message = steps.get()
-                    if counted is not None:
-                        counted.tell(message)
+        with progress(total=len(units), desc=tally.desc, unit=tally.counts,
+                      disable=None if show_progress is None else not show_progress) as bar, \
+                Counting(bar, units, tally, executor, inline=inline) as counted:
 
             def land(fut: Future) -> None:
                 i = futures[fut]
-                read_steps()  # the unit's own, in the pipe before its result
+                counted.read()  # the unit's own, in the pipe before its result
                 try:
                     results[i] = fut.result()
                 except Exception as exc:
@@ -521,17 +512,14 @@ def run_units(fn: Callable[[Any], Any], units: Sequence[Any], *, executor: Execu
                                      "resume") from None
                 if on_result is not None:
                     on_result(units[i], results[i])
-                if counted is None:
-                    bar.update(1)
-                else:
-                    counted.land(i)
+                counted.land(i)
 
             # A pool forks its workers inside submit; a KeyboardInterrupt raised in an os.fork hook would be
             # printed and lost, so a signal there is only noted, and raised once the units are submitted.
             # Inline, submit runs the unit: each result lands (and is kept) before the next unit starts.
             with nullcontext() if inline else _shielded():
                 for i, u in enumerate(units):
-                    fut = executor.submit(_progress.tracked, fn, i, u) if told else executor.submit(fn, u)
+                    fut = counted.submit(executor, fn, i, u)
                     futures[fut] = i
                     if inline:
                         land(fut)
@@ -544,7 +532,7 @@ def run_units(fn: Callable[[Any], Any], units: Sequence[Any], *, executor: Execu
                 # raised here instead, within the 0.25 s of a wait, the units that finished meanwhile kept.
                 with _shielded():
                     done, pending = wait(pending, timeout=0.25, return_when=FIRST_COMPLETED)
-                    read_steps()
+                    counted.read()
                     for fut in done:
                         land(fut)
                 check_interrupted()
@@ -555,6 +543,4 @@ def run_units(fn: Callable[[Any], Any], units: Sequence[Any], *, executor: Execu
             for fut in futures:  # nothing more starts; what finished was handed to on_result already
                 fut.cancel()
         raise
-    finally:
-        _progress._sink = sink
     return results

@@ -70,3 +70,31 @@ def test_a_unit_s_steps_never_take_the_bar_past_its_work():
         work.tell((5, "step", 1))  # of no unit of this bar
         work.land(0)
         assert (bar.total, work.done) == (10, [3, 7])
+
+
+def test_a_message_of_an_earlier_call_s_unit_is_not_counted():
+    from pcreg._runner import InlineExecutor
+
+    with progress(total=0, disable=True) as bar:
+        first = _progress.Counting(bar, [0, 1], _progress.Tally("x", "frame", lambda u: 4), InlineExecutor(), inline=True)
+        second = _progress.Counting(bar, [0, 1], _progress.Tally("x", "frame", lambda u: 4), InlineExecutor(), inline=True)
+        second.tell((first.call, 1, "step", 3))  # still in a pool's pipe from the call before, whose unit raised
+        second.tell((second.call, 1, "step", 2))
+        assert second.work.done == [0, 2] and first.work.done == [0, 0]
+
+
+def test_workers_that_keep_the_pipe_full_do_not_hold_back_a_landed_result():
+    import multiprocessing
+
+    class Pool:  # a pool's pipe, filled beyond what one read takes
+        steps = multiprocessing.SimpleQueue()
+
+    with progress(total=0, disable=True) as bar:
+        counting = _progress.Counting(bar, [0], _progress.Tally("x", "frame", lambda u: 10**6), Pool(), inline=False)
+        for _ in range(counting.READ_AT_MOST + 5):
+            Pool.steps.put((counting.call, 0, "step", 1))
+        counting.read()
+        assert counting.work.done == [counting.READ_AT_MOST] and not Pool.steps.empty()
+        counting.land(0)
+        counting.read()
+        assert counting.work.done == [10**6] and Pool.steps.empty()

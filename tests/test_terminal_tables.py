@@ -58,3 +58,7 @@ def test_evaluate_prints_its_tables_turned_on_a_narrow_terminal(tmp_path, monkey
     kept = (out / "stream_reference.md").read_text()
     assert kept.splitlines()[2].startswith("| clip | frames scored | plain | unregistered |")  # the file as before
     assert "| plain             |" in printed_text and "| flowultrafast_key |" in printed_text
+
+
+def test_marks_above_and_below_and_characters_of_format_take_no_column():
+    assert [shown_width(t) for t in ("ที่", "हिंदी", "🚗\ufe0f", "a\u200bb", "e\u0301", "道路")] == [1, 4, 2, 2, 1, 4]

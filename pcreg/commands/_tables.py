@@ -16,8 +16,10 @@ _NUMBER = re.compile(r"^[-+]?(\d[\d,]*\.?\d*|\.\d+|nan|inf)(%|x)?$")
 
 def shown_width(text: str) -> int:
     """How many terminal columns ``text`` takes: two for a wide character (Chinese, Japanese, Korean), none
-    for a combining mark."""
-    return sum(0 if unicodedata.combining(ch) else 2 if unicodedata.east_asian_width(ch) in "WF" else 1 for ch in text)
+    for a mark on the character before it (an accent, a Thai or Devanagari vowel sign above or below) or a
+    character of format (a zero-width space, an emoji's variation selector)."""
+    return sum(0 if unicodedata.category(ch) in ("Mn", "Me", "Cf") else 2 if unicodedata.east_asian_width(ch) in "WF" else 1
+               for ch in text)
 
 
 def _cells(line: str) -> list[str]:

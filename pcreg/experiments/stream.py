@@ -324,6 +324,7 @@ def plan_units(config: StreamConfig, names: list[str]) -> list:
 def evaluate(config: StreamConfig, *, out=None, force: bool = False, executor=None, recorder=NULL_RECORDER,
              show_progress: bool | None = None) -> Results:
     """Run every clip (resuming from ``out/units`` when ``out`` is given); returns its :class:`Results`."""
+    from .._progress import Tally
     from .units import evaluate_units, load_cached, say_damage
 
     check_davis_config(config)
@@ -349,9 +350,9 @@ def evaluate(config: StreamConfig, *, out=None, force: bool = False, executor=No
             except InputError as exc:
                 raise InputError(f"clip {clip}: {exc}") from None
     return evaluate_units(plan_units(config, list(datasets)), run_unit, config, summarise=summarise, out=out,
-                          force=force, executor=executor, recorder=recorder, desc="stream",
-                          show_progress=show_progress, kept=kept, data_notes=data_notes,
-                          work=("frame", lambda u: (len(datasets[u.dataset]) - 1) * len(config.methods)))
+                          force=force, executor=executor, recorder=recorder, show_progress=show_progress, kept=kept,
+                          data_notes=data_notes,
+                          desc=Tally("stream", "frame", lambda u: (len(datasets[u.dataset]) - 1) * len(config.methods)))
 
 
 def reduction(plain: float, value: float) -> float:

@@ -15,11 +15,14 @@ import json
 import shutil
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 from ..recording.null import NULL_RECORDER
 from .results import Results
 from ..formats import loads_json
+
+if TYPE_CHECKING:
+    from .._progress import Tally
 
 # The data sets loaded last, one per process: units sent to worker processes arrive one by one, and a
 # worker reads the data once for all those it runs. Loading every unit's data again would cost more
@@ -267,14 +270,13 @@ def holds(result: dict, unit: Unit, keys: tuple[str, ...], *, same: tuple[str, .
 
 
 def run_resumable(units: list, run_unit, *, store: "UnitStore | None", cfg_dict: dict, recorder=NULL_RECORDER,
-                  executor=None, desc: str = "", show_progress: bool | None = None,
-                  kept: Callable[[Unit, dict], bool] | None = None,
-                  work: tuple[str, Callable[[Unit], int]] | None = None) -> tuple[dict, int]:
+                  executor=None, desc: "str | Tally" = "", show_progress: bool | None = None,
+                  kept: Callable[[Unit, dict], bool] | None = None) -> tuple[dict, int]:
     """Run the units not finished yet (``store`` keeps each result as it lands), in this process when
     recording (one recorder, frames in order), else through ``executor``. ``kept(unit, result)``: whether a
     kept result is one this version's summary can read (one an earlier pcreg wrote without a section this one
-    has, or a file edited, is run again rather than read without it). ``work``: what the bar counts and each
-    unit's estimate of it (:func:`~pcreg._runner.run_units`; the units by default).
+    has, or a file edited, is run again rather than read without it). ``desc``: the bar's name, or a
+    :class:`~pcreg._progress.Tally` of what it counts (:func:`~pcreg._runner.run_units`).
 
     Returns the results by unit key (finished and new) and how many came from an earlier run. A finished
     unit's ``recording_frames`` (where it lies on an earlier run's recording) is dropped: this run's
@@ -305,12 +307,12 @@ def run_resumable(units: list, run_unit, *, store: "UnitStore | None", cfg_dict:
     if recorder.enabled:  # a recording is written by this process, its frames in order
         recorder.log_config(cfg_dict)
         run_units(partial(run_unit, recorder=recorder, frame_counter=[0]), todo, executor=InlineExecutor(), desc=desc,
-                  on_result=keep, show_progress=show_progress, work=work)
+                  on_result=keep, show_progress=show_progress)
     else:
         if getattr(executor, "remote", False):
             todo = [replace(u, config=for_workers(u.config)) for u in todo]
         run_units(run_unit, todo, executor=executor or InlineExecutor(), desc=desc, on_result=keep,
-                  show_progress=show_progress, work=work)
+                  show_progress=show_progress)
     return done, len(units) - len(todo)
 
 
@@ -333,11 +335,11 @@ def for_workers(config: Any) -> Any:
 
 
 def evaluate_units(units: list, run_unit, config: Any, *, summarise, out: str | Path | None = None,
-                   force: bool = False, executor=None, recorder=NULL_RECORDER, desc: str = "",
+                   force: bool = False, executor=None, recorder=NULL_RECORDER, desc: "str | Tally" = "",
                    show_progress: bool | None = None, kept: Callable[[Unit, dict], bool] | None = None,
-                   data_notes: tuple[str, ...] = (), work: tuple[str, Callable[[Unit], int]] | None = None) -> Results:
+                   data_notes: tuple[str, ...] = ()) -> Results:
     """The body every resumable evaluation shares: run the units not finished in ``out/units`` (all of
-    them without ``out``; ``kept``, ``work``: as :func:`run_resumable`), summarise their results in order (``summarise(config, results)``), and add
+    them without ``out``; ``kept``, ``desc``: as :func:`run_resumable`), summarise their results in order (``summarise(config, results)``), and add
     the presets' real counterparts, the number of resumed units, the wall time and ``data_notes`` (:func:`say_damage`'s)."""
     import time
 
@@ -347,7 +349,7 @@ def evaluate_units(units: list, run_unit, config: Any, *, summarise, out: str | 
     cfg_dict = plain_config(config)
     store = UnitStore(out, cfg_dict, force=force) if out is not None else None
     done, resumed = run_resumable(units, run_unit, store=store, cfg_dict=cfg_dict, recorder=recorder,
-                                  executor=executor, desc=desc, show_progress=show_progress, kept=kept, work=work)
+                                  executor=executor, desc=desc, show_progress=show_progress, kept=kept)
     results = summarise(config, [done[u.key] for u in units])
     for name, tables in results.datasets.items():
         if name in PRESETS:

@@ -201,6 +201,20 @@ def killed_mid_write(path):
     return tmp
 
 
+def write_video(path, frames, fourcc: str = "mp4v"):
+    """``frames`` (objects with an RGB ``image``, all of one size) written to a video at ``path`` (``mp4v`` in MP4,
+    ``MJPG`` in AVI) at 10 frames a second: ``path``."""
+    import cv2
+    import numpy as np
+
+    h, w = frames[0].image.shape[:2]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), 10, (w, h))
+    for f in frames:
+        writer.write(np.ascontiguousarray(f.image[:, :, ::-1]))
+    writer.release()
+    return path
+
+
 def video_run(tmp_path, frames: int = 3):
     """``pcreg run`` of a synthetic ``frames``-frame 96x72 MP4 in ``tmp_path`` from its first frame's labels:
     (the video, the run's folder)."""
@@ -208,17 +222,12 @@ def video_run(tmp_path, frames: int = 3):
     import io
 
     import cv2
-    import numpy as np
 
     import pcreg
     from pcreg.cli import main
 
     synthetic = pcreg.synthetic("syn1a", frames, 0, width=96, height=72)
-    video = tmp_path / "clip.mp4"
-    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 10, (96, 72))
-    for f in synthetic:
-        writer.write(np.ascontiguousarray(f.image[:, :, ::-1]))
-    writer.release()
+    video = write_video(tmp_path / "clip.mp4", synthetic)
     cv2.imwrite(str(tmp_path / "key.png"), synthetic[0].labels)
     out = tmp_path / "out"
     with contextlib.redirect_stdout(io.StringIO()):

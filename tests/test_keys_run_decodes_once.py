@@ -13,6 +13,7 @@ import pcreg
 from pcreg.cli import main
 from pcreg.datasets import sources
 from pcreg.pipeline import key_passes
+from _runs import write_video
 
 
 def _counting(monkeypatch) -> list[int]:
@@ -45,11 +46,7 @@ def _anew(monkeypatch) -> None:
 def test_a_video_with_a_key_frame_every_ten_is_decoded_once(tmp_path, monkeypatch):
     n = 60
     frames = pcreg.synthetic("syn1a", n, 0, width=96, height=72)
-    video = tmp_path / "clip.avi"
-    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10, (96, 72))
-    for f in frames:
-        writer.write(np.ascontiguousarray(f.image[:, :, ::-1]))
-    writer.release()
+    video = write_video(tmp_path / "clip.avi", frames, "MJPG")
     keys = tmp_path / "keys"
     keys.mkdir()
     for i in range(0, n, 10):

@@ -5,54 +5,16 @@ import contextlib
 import io
 
 import cv2
-import numpy as np
 
 import pcreg
 from pcreg import _runner
 from pcreg.cli import main
+from _runs import write_video
 
 
-def test_a_video_run_taken_further_shows_the_frames_decoded_on_the_way(tmp_path, monkeypatch):
-    frames = pcreg.synthetic("syn1a", 12, 0, width=96, height=72)
-    video = tmp_path / "clip.mp4"
-    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 10, (96, 72))
-    for f in frames:
-        writer.write(np.ascontiguousarray(f.image[:, :, ::-1]))
-    writer.release()
-    cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
-    args = ["run", str(video), "--labels", str(tmp_path / "key.png"), "--out", str(tmp_path / "out")]
-    with contextlib.redirect_stdout(io.StringIO()):
-        assert main([*args, "--stop", "7"]) == 0
-    bars, progress = [], _runner.progress
-
-    def shown(*a, **kw):  # every bar drawn (to stderr, which pytest holds), and kept to read its count
-        kw["disable"] = False
-        bars.append(progress(*a, **kw))
-        return bars[-1]
-
-    monkeypatch.setattr(_runner, "progress", shown)
-    with contextlib.redirect_stdout(io.StringIO()):
-        assert main(args) == 0
-    way = [b for b in bars if b.desc.startswith("decoding to frame")]
-    assert [(b.desc, b.n, b.total) for b in way] == [("decoding to frame 000007", 7, 7)]
-    assert sorted(p.name for p in (tmp_path / "out").glob("0*.png")) == [f"{i:06d}.png" for i in range(12)]
-
-
-def test_a_key_frames_run_that_redoes_a_later_stretch_shows_the_way_to_it(tmp_path, monkeypatch):
-    frames = pcreg.synthetic("syn1a", 12, 0, width=96, height=72)
-    video = tmp_path / "clip.avi"
-    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10, (96, 72))
-    for f in frames:
-        writer.write(np.ascontiguousarray(f.image[:, :, ::-1]))
-    writer.release()
-    keys = tmp_path / "keys"
-    keys.mkdir()
-    for i in (0, 4):
-        cv2.imwrite(str(keys / f"{i:06d}.png"), frames[i].labels)
-    args = ["run", str(video), "--labels", str(keys), "--out", str(tmp_path / "out")]
-    with contextlib.redirect_stdout(io.StringIO()):
-        assert main(args) == 0
-    cv2.imwrite(str(keys / "000008.png"), frames[8].labels)  # the stretch after 4 is redone, and one after 8 added
+def _ways(monkeypatch, args) -> list[tuple]:
+    """``pcreg ARGS`` with every bar drawn (to stderr, which pytest holds) and kept: each ``decoding to frame`` bar's
+    name, count and total."""
     bars, progress = [], _runner.progress
 
     def shown(*a, **kw):
@@ -63,5 +25,30 @@ def test_a_key_frames_run_that_redoes_a_later_stretch_shows_the_way_to_it(tmp_pa
     monkeypatch.setattr(_runner, "progress", shown)
     with contextlib.redirect_stdout(io.StringIO()):
         assert main(args) == 0
-    way = [b for b in bars if b.desc.startswith("decoding to frame")]
-    assert [(b.desc, b.n, b.total) for b in way] == [("decoding to frame 000004", 4, 4)]
+    monkeypatch.undo()
+    return [(b.desc, b.n, b.total) for b in bars if b.desc.startswith("decoding to frame")]
+
+
+def test_a_video_run_taken_further_shows_the_frames_decoded_on_the_way(tmp_path, monkeypatch):
+    frames = pcreg.synthetic("syn1a", 12, 0, width=96, height=72)
+    video = write_video(tmp_path / "clip.mp4", frames)
+    cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
+    args = ["run", str(video), "--labels", str(tmp_path / "key.png"), "--out", str(tmp_path / "out")]
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main([*args, "--stop", "7"]) == 0
+    assert _ways(monkeypatch, args) == [("decoding to frame 000007", 7, 7)]
+    assert sorted(p.name for p in (tmp_path / "out").glob("0*.png")) == [f"{i:06d}.png" for i in range(12)]
+
+
+def test_a_key_frames_run_that_redoes_a_later_stretch_shows_the_way_to_it(tmp_path, monkeypatch):
+    frames = pcreg.synthetic("syn1a", 12, 0, width=96, height=72)
+    video = write_video(tmp_path / "clip.avi", frames, "MJPG")
+    keys = tmp_path / "keys"
+    keys.mkdir()
+    for i in (0, 4):
+        cv2.imwrite(str(keys / f"{i:06d}.png"), frames[i].labels)
+    args = ["run", str(video), "--labels", str(keys), "--out", str(tmp_path / "out")]
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(args) == 0
+    cv2.imwrite(str(keys / "000008.png"), frames[8].labels)  # the stretch after 4 is redone, and one after 8 added
+    assert _ways(monkeypatch, args) == [("decoding to frame 000004", 4, 4)]

@@ -52,3 +52,11 @@ def test_a_key_frames_run_that_redoes_a_later_stretch_shows_the_way_to_it(tmp_pa
         assert main(args) == 0
     cv2.imwrite(str(keys / "000008.png"), frames[8].labels)  # the stretch after 4 is redone, and one after 8 added
     assert _ways(monkeypatch, args) == [("decoding to frame 000004", 4, 4)]
+
+
+def test_a_run_from_a_later_start_shows_the_frames_decoded_before_it(tmp_path, monkeypatch):
+    frames = pcreg.synthetic("syn1a", 12, 0, width=96, height=72)
+    video = write_video(tmp_path / "clip.mp4", frames)
+    cv2.imwrite(str(tmp_path / "key.png"), frames[5].labels)
+    args = ["run", str(video), "--labels", str(tmp_path / "key.png"), "--start", "5", "--out", str(tmp_path / "out")]
+    assert _ways(monkeypatch, args) == [("decoding to frame 000005", 5, 5)]

@@ -162,9 +162,8 @@ def run_clip(frames, *, methods=METHODS, key_every: int | None = None, backend: 
     predictions, key_frame)`` is called after every scored frame (a recording hook)."""
     from ..classification.bayes import fit_classifier
     from ..classification.metrics import error_rate
-    from ..pipeline.engine import propagate, stretches
-
     from .._progress import unit_work
+    from ..pipeline.engine import propagate, stretches
 
     n = len(frames)
     keys = [k for k in key_frames(n, key_every) if k == 0 or _can_start(frames[k].labels, methods)]

@@ -10,6 +10,8 @@ from typing import Callable
 
 import numpy as np
 
+from .._progress import unit_step
+
 __all__ = ["METHODS", "PCREG_METHODS", "OBJECT_METHOD", "BASELINES", "PRESET_OF", "CONFIDENCE_LEVELS", "calibration_counts",
            "calibration", "KeyPrior", "FixedPrior", "make_method", "Timed", "counted"]
 
@@ -160,8 +162,6 @@ class Timed:
         self.labeller, self.seconds = labeller, 0.0
 
     def step(self, image: np.ndarray) -> np.ndarray:
-        from .._progress import unit_step
-
         t0 = time.perf_counter()
         labels = self.labeller.step(image)
         self.seconds += time.perf_counter() - t0
@@ -172,8 +172,6 @@ class Timed:
 def counted(keys) -> Callable:
     """:func:`~pcreg.pipeline.keyframes.label_clip`'s ``on_frame``: each frame it labels that is not one of
     ``keys`` is a step of the unit's work on the command's bar (:func:`pcreg._progress.unit_step`)."""
-    from .._progress import unit_step
-
     keys = frozenset(keys)
 
     def on_frame(frame) -> None:

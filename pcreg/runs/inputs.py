@@ -17,6 +17,7 @@ import numpy as np
 
 from ..formats import only_files, resolved
 from .files import CONFIDENCE, HIDDEN
+from .video_file import decoded_to
 
 __all__ = ["RunInputs", "read_inputs", "read_labels", "TruthMaps", "open_truth", "check_spares_inputs",
            "check_suggest", "read_key_labels"]
@@ -133,7 +134,7 @@ def _key_image(request, frames, table, mapping: str) -> tuple[dict, tuple]:
     key_labels = read_labels(request.labels, mapping, table)
     if mapping == "davis":
         check_key_mask(key_labels, str(request.labels))
-    decoded = frames.frames(0)
+    decoded = decoded_to(frames, 0)  # a video's frames before --start decoded under a bar
     key = next(decoded)  # a source with no frame at --start raises, never ends empty
     PreparedFrame.of(key.image, name=frames.where(0))  # a frame no stream takes (3x5 px), named as the file it is
     second = next(decoded, None)
@@ -165,7 +166,7 @@ def _key_folder(request, frames, table, mapping: str, left: list[str]) -> tuple:
     from ..errors import InputError
 
     out, folder = request.out, request.labels
-    first = next(frames.frames(0))  # a source with no frame at --start raises, never ends empty
+    first = next(decoded_to(frames, 0))  # a source with no frame at --start raises, never ends empty
     if resolved(folder) == resolved(out):
         raise InputError(f"--out {out} would overwrite the key frames' labels in {folder}; choose another folder")
     if is_cvat_export(folder):

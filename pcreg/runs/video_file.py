@@ -134,9 +134,9 @@ def video_file_problem(state: dict) -> str | None:
 
 def decoded_to(frames, start: int) -> Iterator:
     """``frames.frames(start)``: a video's decoded here up to its frame at ``start``, under a bar of the frames decoded
-    on the way (a resumed run decodes its video from the first frame, minutes for an hour of video, where the run's
-    bar of frames stood at 0), the rest as the caller reads them; a folder's as they are."""
-    if frames.kind != "video" or start == 0:
+    on the way (a resumed run, or one from ``--start``, decodes its video from the first frame, minutes for an hour of
+    video, where the run's bar of frames stood at 0), the rest as the caller reads them; a folder's as they are."""
+    if frames.kind != "video" or frames.selection.index(start) == 0:
         return frames.frames(start)
     from .._runner import progress
 

@@ -77,3 +77,27 @@ def test_an_interlaced_video_s_frames_are_the_same_however_the_passes_read_them(
     assert count[0] <= 14 + 2  # the check at the start decodes two: a frame is handed on once the next is decoded
     _anew(monkeypatch)
     assert _run(video, keys, tmp_path / "anew") == once
+
+
+def test_a_run_from_a_later_start_decodes_the_frames_before_it_once(tmp_path, monkeypatch):
+    n, start = 40, 20
+    frames = pcreg.synthetic("syn1a", n, 0, width=96, height=72)
+    video = write_video(tmp_path / "clip.avi", frames, "MJPG")
+    keys = tmp_path / "keys"
+    keys.mkdir()
+    for i in (25, 32):  # the first pass begins at the first chosen frame, 20, before the first key frame
+        cv2.imwrite(str(keys / f"{i:06d}.png"), frames[i].labels)
+    count = _counting(monkeypatch)
+    args = ["run", str(video), "--labels", str(keys), "--start", str(start), "--confidence"]
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main([*args, "--out", str(tmp_path / "once")]) == 0
+    assert count[0] <= n + 1  # the key frames' size read from frame 20, where the first pass went on
+    _anew(monkeypatch)
+    count[0] = 0
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main([*args, "--out", str(tmp_path / "anew")]) == 0
+    assert count[0] >= n + start  # as it was: decoded to frame 20 for the size, then again by the first pass
+    for name in ("once", "anew"):
+        assert len(list((tmp_path / name).glob("0*.png"))) == n - start
+    for p in sorted((tmp_path / "anew").rglob("*.png")):
+        assert (tmp_path / "once" / p.relative_to(tmp_path / "anew")).read_bytes() == p.read_bytes(), p.name

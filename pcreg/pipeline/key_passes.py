@@ -62,7 +62,7 @@ class KeyRun:
     labels}) and the propagators' ``config`` (:class:`~pcreg.pipeline.config.PropagatorConfig`). Users name it
     :class:`pcreg.pipeline.keys_run.KeyRun`, which takes 0.2.0's form too."""
 
-    def __init__(self, owner, keys: dict[int, np.ndarray], config) -> None:
+    def __init__(self, owner, keys: dict[int, np.ndarray], config, *, reading: tuple | None = None) -> None:
         self.owner, self.keys, self.config = owner, dict(sorted(keys.items())), config
         self.frames, self.truth, self.confidence = owner.frames, owner.truth, owner.confidence
         self.n = len(self.frames) if self.frames.kind == "folder" else None
@@ -72,7 +72,7 @@ class KeyRun:
         #: Whether the stretches' kept files are compressed (:mod:`pcreg.runs.kept`), for the whole run.
         self.compress = True
         self._fingerprints: dict[Stretch, str] = {}
-        self._decoded = Decoded(self.frames)
+        self._decoded = Decoded(self.frames, reading)
 
     @property
     def state(self) -> dict:
@@ -439,18 +439,24 @@ class Decoded:
     two stretches share, and the frame after it that a pass took to see its stretch end), where each pass read its
     frames from position ``first`` anew, which decodes a video from its start (a key frame a minute over an hour of
     video: its first half decoded sixty times). A frame is the same however the reading got there
-    (:meth:`~pcreg.datasets.sources.VideoFrames.frames`)."""
+    (:meth:`~pcreg.datasets.sources.VideoFrames.frames`). ``held``: a frame and the reading it came from, begun before
+    the passes (the run's first chosen frame, read for its size: a video decoded to ``--start``), which the first pass
+    goes on from if it begins at that frame; a pass that begins later reads anew, passing the frames before its own
+    unconverted."""
 
-    def __init__(self, frames) -> None:
+    def __init__(self, frames, held: tuple | None = None) -> None:
         self.source = frames
-        self._reading: Iterator | None = None
-        self._kept: list = []  # the last two frames taken, in order
+        self._reading: Iterator | None = None if held is None else held[1]
+        self._kept: list = [] if held is None else [held[0]]  # the last two frames taken, in order
+        self._held = held is not None
 
     def frames(self, first: int) -> Iterator:
         """The chosen frames from position ``first`` on (:meth:`~pcreg.datasets.sources.VideoFrames.frames`)."""
         from dataclasses import replace
 
-        if self._reading is None or not self._kept or first < self._kept[0].position:
+        held, self._held = self._held, False
+        if (self._reading is None or not self._kept or first < self._kept[0].position
+                or (held and first > self._kept[0].position)):
             self.close()
             self._reading = decoded_to(self.source, first)  # a video decoded to ``first`` under a bar
         for frame in list(self._kept):

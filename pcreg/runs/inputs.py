@@ -31,7 +31,9 @@ class RunInputs:
     (:class:`TruthMaps`, or None), the class ``table`` the labels are ids of (the request's, or a CVAT
     export's ``labelmap.txt``) and, from one label image, the frames ``pending``: the frame after the key
     frame and the decoder it came from, which a fresh run continues (None from a folder); ``notes``, what reading
-    them met that the run says before the first frame (:func:`other_labels_note`)."""
+    them met that the run says before the first frame (:func:`other_labels_note`); from a folder, ``reading``: the
+    first chosen frame and the decoder it came from, which a pass that begins there goes on from (a video decoded
+    to ``--start`` once, not again by the first pass)."""
 
     frames: Any
     keys: dict
@@ -40,6 +42,7 @@ class RunInputs:
     table: Any
     pending: tuple | None = None
     notes: tuple[str, ...] = ()
+    reading: tuple | None = None
 
 
 def read_inputs(request, frames) -> RunInputs:
@@ -51,11 +54,11 @@ def read_inputs(request, frames) -> RunInputs:
     table, mapping = request.coding.table, request.coding.mapping
     left: list[str] = []  # key labels of frames outside --start/--stop, left out
     if request.folder_of_keys:
-        (table, keys), shape, pending = _key_folder(request, frames, table, mapping, left), None, None
+        (table, keys, reading), shape, pending = _key_folder(request, frames, table, mapping, left), None, None
         # the key files sit in the labels folder, which is not --out: only a frame or a truth map could be overwritten
         spared = request.labels / f"{frames.stem(next(iter(keys)))}.png"
     else:
-        keys, pending = _key_image(request, frames, table, mapping)
+        (keys, pending), reading = _key_image(request, frames, table, mapping), None
         shape, spared = pending[0].image.shape[:2], request.labels
     _check_fits(request, frames, keys, table)
     truth = open_truth(request.truth, frames, shape or keys[next(iter(keys))].shape, mapping, table)
@@ -65,7 +68,7 @@ def read_inputs(request, frames) -> RunInputs:
     notes = (other_labels_note(request.labels, frames) if request.folder_of_keys and request.labels.is_dir() else None,
              left_out_note(f"--labels {request.labels}", left, frames.selection),
              _unheld_note(request, frames, keys, table) if request.folder_of_keys else None)
-    return RunInputs(frames, keys, pending is None, truth, table, pending, tuple(filter(None, notes)))
+    return RunInputs(frames, keys, pending is None, truth, table, pending, tuple(filter(None, notes)), reading)
 
 
 def _unheld_note(request, frames, keys: dict, table) -> str | None:
@@ -158,21 +161,24 @@ def _check_known(path, labels: np.ndarray, table) -> None:
 
 
 def _key_folder(request, frames, table, mapping: str, left: list[str]) -> tuple:
-    """``(table, keys)``: a folder of key frames' labels, ``NAME.png`` for the frame ``NAME``, read through
+    """``(table, keys, reading)``: a folder of key frames' labels, ``NAME.png`` for the frame ``NAME``, read through
     ``table``, or a CVAT export read through its ``labelmap.txt`` (:func:`pcreg.classes.cvat.read_cvat_keys`,
-    whose table it is); each of the frames' size. The names of those of frames outside the chosen stretch, left
-    out, are added to ``left``."""
+    whose table it is); each of the frames' size, which the first chosen frame, read here, gives: ``reading`` is it
+    and the rest of its reading (:attr:`RunInputs.reading`). The names of those of frames outside the chosen stretch,
+    left out, are added to ``left``."""
     from ..classes.cvat import is_cvat_export, read_cvat_keys
     from ..errors import InputError
 
     out, folder = request.out, request.labels
-    first = next(decoded_to(frames, 0))  # a source with no frame at --start raises, never ends empty
+    rest = decoded_to(frames, 0)
+    first = next(rest)  # a source with no frame at --start raises, never ends empty
     if resolved(folder) == resolved(out):
         raise InputError(f"--out {out} would overwrite the key frames' labels in {folder}; choose another folder")
     if is_cvat_export(folder):
-        return read_cvat_keys(folder, frames, first.image.shape[:2], request.coding.classes, mapping=mapping,
-                              left_out=left)
-    return table, read_key_labels(folder, frames, mapping, first.image.shape[:2], table, left_out=left)
+        table, keys = read_cvat_keys(folder, frames, first.image.shape[:2], request.coding.classes, mapping=mapping,
+                                     left_out=left)
+        return table, keys, (first, rest)
+    return table, read_key_labels(folder, frames, mapping, first.image.shape[:2], table, left_out=left), (first, rest)
 
 
 def read_labels(path: Path, mapping: str, table=None):

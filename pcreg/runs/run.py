@@ -155,7 +155,7 @@ class Run:
             if request.record is not None and not request.force:
                 check_recording(run.out, run.identity, Path(request.record))
             if pending is None:
-                run._label_from_keys(request, keys)
+                run._label_from_keys(request, keys, inputs.reading)
             else:
                 run._label_from_key(request, pending, prop, keys[0])
         return 0
@@ -219,15 +219,15 @@ class Run:
             self.commit()
         self._say_done(request, done - start, [0], start=start)
 
-    def _label_from_keys(self, request: RunRequest, keys: dict) -> None:
-        """Every frame labelled from the key frames around it (:class:`pcreg.pipeline.keys_run.KeyRun`)."""
+    def _label_from_keys(self, request: RunRequest, keys: dict, reading: tuple | None = None) -> None:
+        """Every frame labelled from the key frames around it (:class:`pcreg.pipeline.keys_run.KeyRun`), from ``reading`` (:attr:`~pcreg.runs.inputs.RunInputs.reading`)."""
         from .._runner import check_interrupted, progress, tick
         from ..pipeline.key_passes import KeyRun
         from ..recording.stream_log import log_frame
         from .disk import choose_kept
 
         frames = self.frames
-        job = KeyRun(self, keys, request.config)
+        job = KeyRun(self, keys, request.config, reading=reading)
         with inputs_placed(self.out, self.identity, force=request.force):
             job.start(force=request.force)
         choose_kept(job, self.out)

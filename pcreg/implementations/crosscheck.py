@@ -134,7 +134,8 @@ def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig
     """Cross-check the backends: register ``moving`` onto ``reference`` (two images or two point clouds,
     arrays or file paths); for clouds the reference is the ICP target and the moving cloud the source.
 
-    Images: both backends through the image pipeline, a :class:`CrosscheckReport`. Clouds: every name in
+    Images: both backends through the image pipeline, a :class:`CrosscheckReport` (``callback`` told each
+    backend's every iteration, :class:`~pcreg.registration.result.IcpIteration`). Clouds: every name in
     ``implementations`` (default reference and open3d) through :func:`crosscheck_implementations` with
     ``cloud_options`` (its keyword arguments; ``options`` defaults to the registration's iterations and
     thresholds), a
@@ -181,6 +182,9 @@ def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig
         raise InputError(f"{named[0]}: {'an image' if kb == 'images' else 'a cloud'}, and {named[1]} "
                          f"{'an image' if ka == 'images' else 'a cloud'}: give two images or two clouds")
     if ka == "clouds":
+        if callback is not None:  # refused, not ignored: no implementation of the registry calls one
+            raise InputError("callback: a cross-check of clouds calls none (each implementation runs in its own way); "
+                             "for one's iterations use pcreg.icp(source, target, callback=...), or give two images")
         if np.ndim(A) == np.ndim(B) == 2 and np.shape(A)[1] != np.shape(B)[1]:
             raise InputError(f"{named[0]}: a {np.shape(B)[1]}-D cloud, and {named[1]} is {np.shape(A)[1]}-D (the two "
                              "clouds need the same dimension)")

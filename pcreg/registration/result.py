@@ -3,7 +3,7 @@ both backends hand to a callback, and what every cross-checked implementation re
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -17,6 +17,22 @@ def _named(result: "RegistrationResult", name: str) -> np.ndarray:
         kind = "an image" if result.frames == "T_ref_mov" else "a cloud"
         raise AttributeError(f"{kind} registration's transform is {result.frames}, not {name}")
     return result.matrix
+
+
+def _same(a: object, b: object) -> bool:
+    """Two values of a result's field alike: arrays of one shape and the same values, floats by value, NaN as NaN
+    (an implementation that reports no fitness leaves NaN in both), the rest by ``==``."""
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return (isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.shape == b.shape
+                and bool(np.array_equal(a, b, equal_nan=a.dtype.kind in "fc" and b.dtype.kind in "fc")))
+    if isinstance(a, float) and isinstance(b, float):
+        return a == b or (a != a and b != b)
+    return bool(a == b)
+
+
+def _fields_alike(a: object, b: object) -> bool:
+    """Whether two results of one class are alike in every field that compares (:func:`_same`)."""
+    return all(_same(getattr(a, f.name), getattr(b, f.name)) for f in fields(a) if f.compare)  # type: ignore[arg-type]
 
 
 def _fmt_matrix(m: np.ndarray) -> str:
@@ -145,7 +161,7 @@ class RegistrationResult:
         ``"reference"`` or ``"open3d"`` (:func:`pcreg.register`, :func:`pcreg.icp`); in a cross-check,
         the implementation's name.
     seconds : float
-        Wall time of the registration alone (no I/O, no imports).
+        Wall time of the registration alone (no I/O, no imports); two results alike but for it are equal.
     evidence : ImageEvidence or None
         An image registration's evidence (:func:`pcreg.register`): its edge inlier, chance and overlap
         ratios and the generator of the winning hypothesis, also read as :attr:`inlier_ratio`,
@@ -159,6 +175,9 @@ class RegistrationResult:
     trace : tuple of IcpIteration
         The iterations of a cross-checked implementation run with ``trace=True`` (the pose after each
         update, iteration 0 the initial guess), without their point arrays; empty otherwise.
+
+    Two results are equal (``==``) when their matrices hold the same values and the other fields but
+    ``seconds``, ``info`` and ``trace`` are equal, NaN as NaN.
     """
 
     matrix: np.ndarray
@@ -167,7 +186,7 @@ class RegistrationResult:
     iterations: int
     converged: bool | None
     backend: str
-    seconds: float = 0.0
+    seconds: float = field(default=0.0, compare=False)
     evidence: ImageEvidence | None = None
     info: dict = field(default_factory=dict, compare=False)
     frames: str = "T_target_source"
@@ -179,6 +198,19 @@ class RegistrationResult:
         m = np.array(self.matrix, dtype=np.float64, copy=True)
         m.setflags(write=False)
         object.__setattr__(self, "matrix", m)
+
+    def __eq__(self, other: object) -> bool:
+        if other.__class__ is not self.__class__:
+            return NotImplemented
+        return _fields_alike(self, other)
+
+    def __hash__(self) -> int:
+        return hash((self.backend, self.frames, self.iterations, self.matrix.shape))
+
+    def __setstate__(self, state: dict) -> None:
+        """Unpickled (a worker's result) or deep-copied as it was made: its matrix read-only."""
+        self.__dict__.update(state)
+        self.matrix.setflags(write=False)
 
     @property
     def inlier_ratio(self) -> float:
@@ -292,6 +324,14 @@ class IcpIteration:
     source_points: np.ndarray | None = None
     target_points: np.ndarray | None = None
     target_indices: np.ndarray | None = None
+
+    def __eq__(self, other: object) -> bool:
+        if other.__class__ is not self.__class__:
+            return NotImplemented
+        return _fields_alike(self, other)  # the arrays by their values, NaN as NaN (as RegistrationResult)
+
+    def __hash__(self) -> int:
+        return hash((self.backend, self.level, self.iteration))
 
     def __repr__(self) -> str:
         return (f"IcpIteration(backend={self.backend!r}, level={self.level}, iteration={self.iteration}, "

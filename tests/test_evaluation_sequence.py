@@ -255,7 +255,7 @@ def test_a_recorded_run_says_it_leaves_the_scheduler_aside(tmp_path, capsys):
             "--out", str(tmp_path / "s"), "--record", str(tmp_path / "s.rrd"), "--force"]
     for given in (["--scheduler", "tcp://127.0.0.1:1"], ["--workers", "2"]):
         assert main([*args, *given]) == 0
-        assert f"note: --record runs every unit in this process ({given[0]} ignored)" in capsys.readouterr().out
+        assert f"pcreg: note: --record runs every unit in this process ({given[0]} ignored)" in capsys.readouterr().err
     # both: the scheduler's workers would run the units, --workers was dropped without a word
     assert main([*args, "--scheduler", "tcp://127.0.0.1:1", "--workers", "2"]) == 2
     assert capsys.readouterr().err.splitlines() == ["pcreg: error: --workers 2 with --scheduler: the scheduler's workers run "

@@ -26,6 +26,8 @@ def test_a_later_stop_goes_on_and_labels_what_one_run_labels(tmp_path, capsys):
         assert main([*run, "--stop", "3"]) == 0
         assert {p.stem for p in out.glob("*.png")} == {"f0", "f1", "f2"}
         assert main([*run, "--stop", "5"]) == 0
+        said = capsys.readouterr().out  # the frames labelled now, and with those before (as the predicted error counts them)
+        assert name != "one" or "2 frame(s) labelled into" in said and "(4 with the 2 before)" in said
         assert main(run) == 0
         assert json.loads((out / "run.json").read_text())["run"].get("frames") is None
         assert main(["run", str(folder), "--labels", str(labels), "--out", str(whole)]) == 0
@@ -36,6 +38,18 @@ def test_a_later_stop_goes_on_and_labels_what_one_run_labels(tmp_path, capsys):
         assert main([*run, "--start", "1", "--stop", "9"]) == 2  # other frames, at other positions
         assert "other options (frames: every frame then, --start 1 --stop 9 now)" in one_line_errors(capsys)[-1]
         assert _labels(out) == _labels(whole)
+
+
+def test_a_later_stop_beside_another_option_is_not_named_among_what_differs(tmp_path, capsys):
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=6)
+    run = ["run", str(folder), "--labels", str(key), "--out", str(tmp_path / "out")]
+    assert main([*run, "--stop", "3"]) == 0
+    capsys.readouterr()
+    assert main([*run, "--confidence"]) == 2  # the confidence maps differ; a later --stop alone would be taken
+    said = one_line_errors(capsys)[-1]
+    assert "holds a run with other options (confidence: not set then, True now)" in said and "frames" not in said
+    assert main([*run, "--stop", "2", "--confidence"]) == 2  # fewer frames: named, as before
+    assert "frames: --stop 3 then, --stop 2 now" in one_line_errors(capsys)[-1]
 
 
 def test_a_video_run_to_its_stop_goes_on_past_it(tmp_path):

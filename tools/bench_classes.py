@@ -143,6 +143,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=2000)
     ap.add_argument("--size", default="320x240")
     a = ap.parse_args(argv)
+    if a.frames <= WARM_STEP:
+        ap.error(f"--frames must be more than {WARM_STEP}: memory is measured from step {WARM_STEP} on")
+    if a.repeats < 1:
+        ap.error("--repeats must be at least 1")
     w, h = (int(v) for v in a.size.split("x"))
     images, labels = load_clip(a.clip, (640, 480))
     report = {"machine": machine_info(), "time": time_steps(images, labels, a.repeats + 1)}

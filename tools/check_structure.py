@@ -12,7 +12,6 @@ not a verdict. Pairs of repeated code are the ``duplicates`` command's.
 from __future__ import annotations
 
 import ast
-import sys
 from pathlib import Path
 
 MAX_FILE_LINES = 600
@@ -93,8 +92,14 @@ def findings(root: Path) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = sys.argv[1:] if argv is None else argv
-    found = findings(Path(args[0] if args else "pcreg"))
+    import argparse
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("package", nargs="?", default="pcreg", help="the package's folder (default: pcreg)")
+    package = Path(ap.parse_args(argv).package)
+    if not package.is_dir() or not any(package.rglob("*.py")):
+        ap.error(f"{package}: no folder of Python files")  # a mistyped path checked nothing, and passed
+    found = findings(package)
     print("\n".join(found) if found else "no findings")
     return 1 if found else 0
 

@@ -33,5 +33,8 @@ def stub_text() -> str:
 
 
 if __name__ == "__main__":
+    import argparse
+
+    argparse.ArgumentParser(description=__doc__.splitlines()[0]).parse_args()
     (ROOT / "pcreg" / "__init__.pyi").write_text(stub_text())
     print("wrote pcreg/__init__.pyi")

@@ -65,8 +65,11 @@ def shapes() -> dict[str, np.ndarray]:
 
 
 def main() -> int:
+    import argparse
+
     from pcreg.registration.plausibility import turned_onto_itself
 
+    argparse.ArgumentParser(description=__doc__.split("\n\n")[0].replace("\n", " ")).parse_args()
     if not DATA.is_dir():
         sys.exit(f"{DATA} is absent: this measure reads the shared data")
     paths = sorted(p for p in (DATA / "photos").iterdir() if p.suffix in (".png", ".jpg"))

@@ -3,7 +3,7 @@ renders the recording headless, and the PNG is stored palette-quantised (small) 
 
     python tools/view_figures.py --data ../shared/data --out out/view_figures [--kinds register,sequence]
 
-Kinds: register, crosscheck (CamVid 0016E5 frames 07959 -> 07969), crosscheck_clouds (the LiDAR scan
+Kinds: register, crosscheck (CamVid 0016E5 frames 07959 -> 07965), crosscheck_clouds (the LiDAR scan
 pair, four implementations), sequence (its first 8 frames, k = 1),
 rotation (its first frame rotated by 10-40 degrees), demo (``pcreg demo --frames 8``), compare (the register
 run with each backend, ``pcreg view A.rrd B.rrd``), dense (the sequence run with ``--model dense``).
@@ -24,7 +24,9 @@ KINDS = ("register", "crosscheck", "crosscheck_clouds", "sequence", "rotation", 
 def pcreg(*argv: str) -> None:
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     print("$ pcreg", " ".join(argv), flush=True)
-    subprocess.run([sys.executable, "-m", "pcreg.cli", *argv], check=True, env=env, stdout=subprocess.DEVNULL)
+    code = subprocess.run([sys.executable, "-m", "pcreg.cli", *argv], env=env, stdout=subprocess.DEVNULL).returncode
+    if code != 0:  # its one line is above, on stderr
+        sys.exit(f"view_figures: pcreg {argv[0]} ended with exit code {code}; no figure written for it")
 
 
 def small_png(src: Path, dst: Path, *, width: int = 1100, colours: int = 96) -> None:
@@ -48,7 +50,7 @@ def main() -> int:
     out, figures = Path(args.out), Path(args.figures)
     out.mkdir(parents=True, exist_ok=True)
     clip = Path(args.data) / "camvid" / "0016E5"
-    ref, mov = clip / "images" / "0016E5_07959.png", clip / "images" / "0016E5_07969.png"
+    ref, mov = clip / "images" / "0016E5_07959.png", clip / "images" / "0016E5_07965.png"
     if not ref.is_file():
         sys.exit(f"no CamVid clip at {clip} (give --data)")
     camvid = ["--data", f"camvid:{clip}"]

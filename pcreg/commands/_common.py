@@ -294,7 +294,7 @@ def run_command(args: argparse.Namespace, config: Any, *, name: str, evaluate, w
     recording = bool(getattr(args, "record", None))
     dropped = [o for o, given in (("--workers", args.workers > 1), ("--scheduler", args.scheduler)) if given]
     if recording and dropped:
-        print(f"note: --record runs every unit in this process ({' and '.join(dropped)} ignored)")
+        sys.stderr.write(f"pcreg: note: --record runs every unit in this process ({' and '.join(dropped)} ignored)\n")
     with OutputLock(out):  # a second run on the same --out is refused, not raced
         with open_recorder(args, name=f"pcreg evaluate {name}", layout=name) as rec:
             with make_executor(1 if recording else args.workers, scheduler=None if recording else args.scheduler) as ex:

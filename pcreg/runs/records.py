@@ -39,9 +39,11 @@ def check_recording(out: Path, identity: dict | None, record: Path) -> None:
         return
     done = state.get("done")
     counted = f" after {done} frames" if isinstance(done, int) else ""
-    raise OutputError(f"{record}: the recording of this run, cut short when the run was killed{counted}; to go "
-                      "on from there, give another --record file (it holds the frames from there on); to record "
-                      "every frame in this one, add --force (the run starts over from the key frame, same labels)")
+    raise OutputError(f"{record}: the recording of this run, cut short when the run was killed{counted} (it holds "
+                      "what was logged up to about a second before: rerun writes a second at a time, so a run killed "
+                      "in its first second left it none); to go on from there, give another --record file (it holds "
+                      "the frames from there on); to record every frame in this one, add --force (the run starts "
+                      "over from the key frame, same labels)")
 
 
 def run_recording(request, table):

@@ -267,7 +267,7 @@ class Run:
         steps = self._predicting_steps()  # read once, for the suggestions and the closing lines
         if start is not None:
             self.suggest(request.suggest, keys, steps)
-            msg = f"{done} frame(s) labelled into {out}"
+            msg = f"{done} frame(s) labelled into {out}" + (f" ({start - 1 + done} with the {start - 1} before)" if start > 1 else "")
             failed = "those frames fuse the key frame's labels unwarped; "
         else:
             msg = f"{done} frame(s) labelled from {len(keys)} key frame(s) into {out}"

@@ -378,6 +378,8 @@ def _differences(before: object, now: dict) -> str:
         return short_repr(d["v"]) if "v" in d else "not set"
 
     names = sorted(k for k in set(before) | set(now) if (k in before, before.get(k)) != (k in now, now.get(k)))
+    if "frames" in names and _reaches_further({**now, "frames": before.get("frames")}, now):
+        names.remove("frames")  # a later --stop alone is taken (:func:`_reaches_further`): not what differs
     said = []
     for k in names[:3]:
         name, then, latest = _first_difference(k, before, now)

@@ -159,6 +159,7 @@ def test_a_shared_sequence_split_into_two_objects_is_scored_per_object(shared_da
     assert all(0.5 < d["sequences"][c]["J"]["unregistered"] <= 1 for c in d["sequences"])
     # the published figures are of DAVIS 2016's one object, not of these halves
     assert all(v is None or np.isnan(v) for v in d["published"]["J"]["osvos"].values())
+    assert "no figure for any of these 2 objects" in (out / "davis_J.md").read_text()  # two objects of one sequence
 
 
 def test_pcreg_run_refuses_a_multi_object_key_mask_naming_it_and_its_objects(tmp_path, capsys):

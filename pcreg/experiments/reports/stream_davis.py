@@ -88,19 +88,20 @@ def _published_note(d: dict, measure: str, short: list[str]) -> str:
     """What the published means are over: every sequence, some (how many), or none (``short``: the sequences none
     of whose frames is scored, which the row that compares leaves out, and is named for)."""
     pub, n = d["published"], len(d["sequences"])
+    what = "objects" if d.get("objects") else "sequences"  # DAVIS 2017's rows are objects, a sequence's each
     scored = "scored " if short else ""  # as the row is named
     counted = pub.get("counted", {}).get(measure)
     if not pub["methods"] or counted is None:
         return ""
     if not any(counted.values()):
-        return f"\nThe published methods have no figure for any of these {n} sequences: their means are nan.\n"
+        return f"\nThe published methods have no figure for any of these {n} {what}: their means are nan.\n"
     if all(c == n for c in counted.values()):
         return ""
     each = ", ".join(f"{p.upper()} {c}" for p, c in counted.items())
-    return (f"\nThe published means are over the sequences with a figure only ({each} of {n}); the row of the "
+    return (f"\nThe published means are over the {what} with a figure only ({each} of {n}); the row of the "
             f"{len(pub.get('covered', []))} {scored}with every published figure compares pcreg's methods with them on the same "
             "sequences.\n" if d.get("mean_covered") else
-            f"\nThe published means are over the sequences with a figure only ({each} of {n}).\n")
+            f"\nThe published means are over the {what} with a figure only ({each} of {n}).\n")
 
 
 def split_line(results: dict) -> str:

@@ -4,6 +4,8 @@ one before stopped, where it decoded the video from its first frame again (60 fr
 
 import contextlib
 import io
+import os
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -101,3 +103,31 @@ def test_a_run_from_a_later_start_decodes_the_frames_before_it_once(tmp_path, mo
         assert len(list((tmp_path / name).glob("0*.png"))) == n - start
     for p in sorted((tmp_path / "anew").rglob("*.png")):
         assert (tmp_path / "once" / p.relative_to(tmp_path / "anew")).read_bytes() == p.read_bytes(), p.name
+
+
+@pytest.mark.skipif(not Path("/proc/self/fd").is_dir(), reason="reads the open files from /proc/self/fd (Linux)")
+def test_a_refused_run_keeps_no_video_open_while_its_error_is_held(tmp_path):
+    """The reading a folder run begins at --start is closed however the run ends: a refusal kept (a notebook's last
+    error, ``pytest.raises``) held the video's file and its decoder."""
+    from pcreg.datasets.sources import Selection
+    from pcreg.errors import OutputError
+    from pcreg.pipeline.config import PropagatorConfig
+    from pcreg.runs.run import Run, RunRequest
+
+    frames = pcreg.synthetic("syn1a", 12, 0, width=96, height=72)
+    video = write_video(tmp_path / "clip.avi", frames, "MJPG")
+    keys = tmp_path / "keys"
+    keys.mkdir()
+    for i in (6, 9):
+        cv2.imwrite(str(keys / f"{i:06d}.png"), frames[i].labels)
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["run", str(video), "--labels", str(keys), "--start", "4", "--confidence", "--out", str(tmp_path / "o")]) == 0
+
+    def held() -> list[str]:
+        fds = Path("/proc/self/fd")
+        return [t for t in (os.readlink(fd) for fd in fds.iterdir() if fd.exists()) if t.endswith("clip.avi")]
+
+    request = RunRequest(video, keys, tmp_path / "o", PropagatorConfig(), Selection(start=4), confidence=False)
+    with pytest.raises(OutputError, match="other options") as refused:
+        Run.label(request)
+    assert refused.value is not None and held() == []

@@ -47,7 +47,7 @@ def test_the_constructor_of_0_2_labels_what_the_new_one_labels(tmp_path, clip):
     assert sorted(seen) == ["f1.png", "f2.png", "f4.png"]
     assert (tmp_path / "old" / "confidence" / "f1.png").is_file()
 
-    new = KeyRun(Run(FolderFrames(folder), tmp_path / "new", identity, confidence=True), keys, config)
+    new = KeyRun(Run(FolderFrames(folder), tmp_path / "new", identity, confidence=True), keys, config, reading=None)
     (tmp_path / "new").mkdir()
     new.start()
     told = []

@@ -33,6 +33,13 @@ def test_two_results_of_one_registration_are_equal_and_others_not():
     nan = RegistrationResult(a.matrix, float("nan"), float("nan"), -1, None, "py:mine", frames=a.frames)
     assert nan == RegistrationResult(a.matrix, float("nan"), float("nan"), -1, None, "py:mine", frames=a.frames)
     assert nan != RegistrationResult(a.matrix, float("nan"), float("nan"), -1, None, "py:theirs", frames=a.frames)
+    from pcreg.registration.result import ImageEvidence
+
+    def evidence(r):  # an image's result with a NaN in its evidence, and float32 scores (a user's backend)
+        return RegistrationResult(np.eye(3), np.float32("nan"), np.float32(0.5), 3, True, "py:mine", frames="T_ref_mov",
+                                  evidence=ImageEvidence(float("nan"), 0.1, r, "edges"))
+
+    assert evidence(0.9) == evidence(0.9) == pickle.loads(pickle.dumps(evidence(0.9))) != evidence(0.8)
     step = IcpIteration("reference", 0, 1, a.matrix, 0.5, 0.1, np.zeros((3, 3)), None, np.array([0, -1, 2]))
     assert step == copy.deepcopy(step) and hash(step) == hash(copy.deepcopy(step))
     assert step != IcpIteration("reference", 0, 1, a.matrix, 0.5, 0.1, np.ones((3, 3)), None, np.array([0, -1, 2]))

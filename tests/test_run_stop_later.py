@@ -40,6 +40,18 @@ def test_a_later_stop_goes_on_and_labels_what_one_run_labels(tmp_path, capsys):
         assert _labels(out) == _labels(whole)
 
 
+def test_a_key_frames_run_taken_further_says_the_frames_labelled_in_all(tmp_path, capsys):
+    """The frames labelled now (the stretch after the last key frame, 6 and 7) and, as the predicted error counts them, in all."""
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=8)
+    keys = key_frames_of(key, tmp_path / "keys", positions=(0, 5))
+    run = ["run", str(folder), "--labels", str(keys), "--out", str(tmp_path / "out")]
+    assert main([*run, "--stop", "7"]) == 0
+    assert "5 frame(s) labelled from 2 key frame(s) into" in capsys.readouterr().out
+    assert main(run) == 0
+    said = capsys.readouterr().out
+    assert "2 frame(s) labelled from 2 key frame(s) into" in said and "(6 in all)" in said and "over 6 frame(s)" in said
+
+
 def test_a_later_stop_beside_another_option_is_not_named_among_what_differs(tmp_path, capsys):
     folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=6)
     run = ["run", str(folder), "--labels", str(key), "--out", str(tmp_path / "out")]

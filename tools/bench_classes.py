@@ -95,7 +95,7 @@ def memory_soak(images, labels, n: int) -> dict:
     for i in tqdm(range(1, n + 1), desc="steps", disable=None):
         r = i % period
         prop.step(images[r if r < m else period - r])
-        if i % 50 == 0 or i == WARM_STEP:
+        if i % 50 == 0 or i in (WARM_STEP, n):  # the last step too: its growth since step WARM_STEP measured
             samples.append((i, rss_mb()))
     warm = next(v for i, v in samples if i >= WARM_STEP)
     end = samples[-1][1]

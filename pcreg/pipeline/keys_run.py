@@ -17,7 +17,8 @@ __all__ = ["KeyRun", "HIDDEN"]
 
 #: ``KeyRun(owner, keys, config)``, and 0.2.0's ``KeyRun(frames, keys, out, config, *, identity, truth=None,
 #: confidence=False)``, still taken until 0.4.
-_FORM = inspect.Signature([inspect.Parameter(n, inspect.Parameter.POSITIONAL_OR_KEYWORD) for n in ("owner", "keys", "config")])
+_FORM = inspect.Signature([inspect.Parameter(n, inspect.Parameter.POSITIONAL_OR_KEYWORD) for n in ("owner", "keys", "config")]
+                          + [inspect.Parameter("reading", inspect.Parameter.KEYWORD_ONLY, default=None)])
 _FORM_0_2 = inspect.Signature(
     [inspect.Parameter(n, inspect.Parameter.POSITIONAL_OR_KEYWORD) for n in ("frames", "keys", "out", "config")]
     + [inspect.Parameter("identity", inspect.Parameter.KEYWORD_ONLY),
@@ -31,10 +32,12 @@ class KeyRun(key_passes.KeyRun):
     :class:`~pcreg.runs.run.Run` that spells, with a :class:`DeprecationWarning` naming the new spelling."""
 
     def __init__(self, *args, **kwargs) -> None:
-        if len(args) + len(kwargs) > 3 or not set(kwargs) <= {"owner", "keys", "config"}:
+        named = set(kwargs) - {"reading"}  # the first chosen frame's reading (key_passes.KeyRun), keyword only
+        if len(args) + len(named) > 3 or not named <= {"owner", "keys", "config"}:
             super().__init__(*_run_of_0_2(*args, **kwargs))
         else:
-            super().__init__(*_bound(_FORM, args, kwargs))
+            owner, keys, config, reading = _bound(_FORM, args, kwargs)
+            super().__init__(owner, keys, config, reading=reading)
 
 
 def _bound(form: inspect.Signature, args: tuple, kwargs: dict) -> list:

@@ -3,7 +3,7 @@ both backends hand to a callback, and what every cross-checked implementation re
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, is_dataclass
 
 import numpy as np
 
@@ -20,13 +20,16 @@ def _named(result: "RegistrationResult", name: str) -> np.ndarray:
 
 
 def _same(a: object, b: object) -> bool:
-    """Two values of a result's field alike: arrays of one shape and the same values, floats by value, NaN as NaN
-    (an implementation that reports no fitness leaves NaN in both), the rest by ``==``."""
+    """Two values of a result's field alike: arrays of one shape and the same values, floats (numpy's too) by value,
+    NaN as NaN (an implementation that reports no fitness leaves NaN in both), the evidence's records field by field
+    the same way, the rest by ``==``."""
     if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
         return (isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.shape == b.shape
                 and bool(np.array_equal(a, b, equal_nan=a.dtype.kind in "fc" and b.dtype.kind in "fc")))
-    if isinstance(a, float) and isinstance(b, float):
-        return a == b or (a != a and b != b)
+    if isinstance(a, (float, np.floating)) and isinstance(b, (float, np.floating)):
+        return bool(a == b) or bool(a != a and b != b)
+    if is_dataclass(a) and not isinstance(a, type) and type(a) is type(b):
+        return _fields_alike(a, b)
     return bool(a == b)
 
 

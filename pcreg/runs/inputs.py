@@ -9,9 +9,10 @@ line naming the file.
 from __future__ import annotations
 
 import os
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 
@@ -44,6 +45,27 @@ class RunInputs:
     notes: tuple[str, ...] = ()
     reading: tuple | None = None
 
+    def __enter__(self) -> "RunInputs":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        """The run from a folder ended, however: the reading it began is closed (a video's file), also where a
+        refusal is kept in a traceback. (One label image's ``pending`` its run closes as it reads it ahead.)"""
+        if self.reading is not None:
+            self.reading[-1].close()
+
+
+@contextmanager
+def _closed_on_error(reading: tuple | None) -> Iterator[None]:
+    """``reading``'s decoder closed (a video's file) when what runs under it raises: a refusal kept in a traceback
+    keeps no file open."""
+    try:
+        yield
+    except BaseException:
+        if reading is not None:
+            reading[-1].close()
+        raise
+
 
 def read_inputs(request, frames) -> RunInputs:
     """The inputs of ``request`` (a :class:`~pcreg.runs.run.RunRequest`) whose ``frames`` are open, read and
@@ -60,14 +82,15 @@ def read_inputs(request, frames) -> RunInputs:
     else:
         (keys, pending), reading = _key_image(request, frames, table, mapping), None
         shape, spared = pending[0].image.shape[:2], request.labels
-    _check_fits(request, frames, keys, table)
-    truth = open_truth(request.truth, frames, shape or keys[next(iter(keys))].shape, mapping, table)
-    check_spares_inputs(request.out, frames, spared, truth,
-                        writes=((CONFIDENCE,) if request.confidence else ()) + ((HIDDEN,) if request.folder_of_keys else ()))
-    check_suggest(request.suggest, frames, len(keys))
-    notes = (other_labels_note(request.labels, frames) if request.folder_of_keys and request.labels.is_dir() else None,
-             left_out_note(f"--labels {request.labels}", left, frames.selection),
-             _unheld_note(request, frames, keys, table) if request.folder_of_keys else None)
+    with _closed_on_error(reading):
+        _check_fits(request, frames, keys, table)
+        truth = open_truth(request.truth, frames, shape or keys[next(iter(keys))].shape, mapping, table)
+        check_spares_inputs(request.out, frames, spared, truth,
+                            writes=((CONFIDENCE,) if request.confidence else ()) + ((HIDDEN,) if request.folder_of_keys else ()))
+        check_suggest(request.suggest, frames, len(keys))
+        notes = (other_labels_note(request.labels, frames) if request.folder_of_keys and request.labels.is_dir() else None,
+                 left_out_note(f"--labels {request.labels}", left, frames.selection),
+                 _unheld_note(request, frames, keys, table) if request.folder_of_keys else None)
     return RunInputs(frames, keys, pending is None, truth, table, pending, tuple(filter(None, notes)), reading)
 
 
@@ -172,13 +195,15 @@ def _key_folder(request, frames, table, mapping: str, left: list[str]) -> tuple:
     out, folder = request.out, request.labels
     rest = decoded_to(frames, 0)
     first = next(rest)  # a source with no frame at --start raises, never ends empty
-    if resolved(folder) == resolved(out):
-        raise InputError(f"--out {out} would overwrite the key frames' labels in {folder}; choose another folder")
-    if is_cvat_export(folder):
-        table, keys = read_cvat_keys(folder, frames, first.image.shape[:2], request.coding.classes, mapping=mapping,
-                                     left_out=left)
-        return table, keys, (first, rest)
-    return table, read_key_labels(folder, frames, mapping, first.image.shape[:2], table, left_out=left), (first, rest)
+    with _closed_on_error((first, rest)):
+        if resolved(folder) == resolved(out):
+            raise InputError(f"--out {out} would overwrite the key frames' labels in {folder}; choose another folder")
+        if is_cvat_export(folder):
+            table, keys = read_cvat_keys(folder, frames, first.image.shape[:2], request.coding.classes, mapping=mapping,
+                                         left_out=left)
+        else:
+            keys = read_key_labels(folder, frames, mapping, first.image.shape[:2], table, left_out=left)
+    return table, keys, (first, rest)
 
 
 def read_labels(path: Path, mapping: str, table=None):

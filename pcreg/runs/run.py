@@ -133,31 +133,31 @@ class Run:
         from .inputs import read_inputs
         from .state import run_identity
 
-        inputs = read_inputs(request, open_frames(request.frames, request.selection))
-        keys, pending, table = inputs.keys, inputs.pending, inputs.table
-        if request.config.follow == "object" and not binary_table(table):
-            what = f"{table.n_known} classes" if table.n_known > 2 else f"the ids {table.describe()}"
-            raise InputError(f"--classes {table.source or 'table'}: --follow object follows one object (background and "
-                             f"object, ids 0 and 1, 2 unknown), not {what}; use --follow scene (the default) for them")
-        _notes_before_the_first_frame(keys, table, request.config, inputs.frames, pending, inputs.notes)
-        try:
-            prop = None if pending is None else request.config.from_key_frame(
-                pending[0].image, keys[0], classes=None if binary_table(table) else table)
-        except InputError as exc:  # what the follower cannot take of the key mask: name the file
-            if request.config.follow != "object":
-                raise
-            raise InputError(f"{request.labels}: {exc}") from None
-        identity = with_classes(run_identity(inputs.frames, request.frames, request.labels, request.config,
-                                             mapping=request.coding.mapping, truth=request.truth,
-                                             confidence=request.confidence), table, request.coding.mapping)
-        run = cls(inputs.frames, request.out, identity, truth=inputs.truth, confidence=request.confidence)
-        with OutputLock(request.out):  # a second run on the same --out is refused, not raced
-            if request.record is not None and not request.force:
-                check_recording(run.out, run.identity, Path(request.record))
-            if pending is None:
-                run._label_from_keys(request, keys, inputs.reading)
-            else:
-                run._label_from_key(request, pending, prop, keys[0])
+        with read_inputs(request, open_frames(request.frames, request.selection)) as inputs:  # its readings closed at the end
+            keys, pending, table = inputs.keys, inputs.pending, inputs.table
+            if request.config.follow == "object" and not binary_table(table):
+                what = f"{table.n_known} classes" if table.n_known > 2 else f"the ids {table.describe()}"
+                raise InputError(f"--classes {table.source or 'table'}: --follow object follows one object (background and "
+                                 f"object, ids 0 and 1, 2 unknown), not {what}; use --follow scene (the default) for them")
+            _notes_before_the_first_frame(keys, table, request.config, inputs.frames, pending, inputs.notes)
+            try:
+                prop = None if pending is None else request.config.from_key_frame(
+                    pending[0].image, keys[0], classes=None if binary_table(table) else table)
+            except InputError as exc:  # what the follower cannot take of the key mask: name the file
+                if request.config.follow != "object":
+                    raise
+                raise InputError(f"{request.labels}: {exc}") from None
+            identity = with_classes(run_identity(inputs.frames, request.frames, request.labels, request.config,
+                                                 mapping=request.coding.mapping, truth=request.truth,
+                                                 confidence=request.confidence), table, request.coding.mapping)
+            run = cls(inputs.frames, request.out, identity, truth=inputs.truth, confidence=request.confidence)
+            with OutputLock(request.out):  # a second run on the same --out is refused, not raced
+                if request.record is not None and not request.force:
+                    check_recording(run.out, run.identity, Path(request.record))
+                if pending is None:
+                    run._label_from_keys(request, keys, inputs.reading)
+                else:
+                    run._label_from_key(request, pending, prop, keys[0])
         return 0
 
     def _label_from_key(self, request: RunRequest, pending: tuple, prop, labels: np.ndarray) -> None:
@@ -270,7 +270,7 @@ class Run:
             msg = f"{done} frame(s) labelled into {out}" + (f" ({start - 1 + done} with the {start - 1} before)" if start > 1 else "")
             failed = "those frames fuse the key frame's labels unwarped; "
         else:
-            msg = f"{done} frame(s) labelled from {len(keys)} key frame(s) into {out}"
+            msg = f"{done} frame(s) labelled from {len(keys)} key frame(s) into {out}" + (f" ({len(steps)} in all)" if len(steps) > done else "")
             failed = ""
         if s["fallbacks"]:
             msg += f"; {s['fallbacks']} registration(s) failed ({failed}see {out / STEPS})"

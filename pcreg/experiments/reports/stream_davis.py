@@ -100,7 +100,7 @@ def _published_note(d: dict, measure: str, short: list[str]) -> str:
     each = ", ".join(f"{p.upper()} {c}" for p, c in counted.items())
     return (f"\nThe published means are over the {what} with a figure only ({each} of {n}); the row of the "
             f"{len(pub.get('covered', []))} {scored}with every published figure compares pcreg's methods with them on the same "
-            "sequences.\n" if d.get("mean_covered") else
+            f"{what}.\n" if d.get("mean_covered") else
             f"\nThe published means are over the {what} with a figure only ({each} of {n}).\n")
 
 

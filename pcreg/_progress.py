@@ -1,7 +1,8 @@
 """Progress finer than a unit: a unit of an evaluation says how much work it holds (its frames, say) and
 counts each step of it as it goes, in whichever process runs it; the command's bar counts the steps.
 
-A unit calls :func:`unit_work` once it knows its work and :func:`unit_step` after each step. Both do nothing
+A unit calls :func:`unit_work` once it knows its work (what is left of it: the steps it told before, choosing its
+key frames say, count too) and :func:`unit_step` after each step. Both do nothing
 unless the unit runs under :func:`~pcreg._runner.run_units` with a :class:`Tally` that estimates the work: in the
 command's own process they reach its :class:`Counting` directly, in a local pool's worker through a pipe to it
 (read as results land, and every quarter of a second), on a dask cluster nowhere (its bar moves as units land).
@@ -15,8 +16,19 @@ from typing import Any, Callable
 
 #: Where this process's unit tells its progress (a :meth:`Counting.tell`, or a pipe's ``put`` to one); None: nowhere.
 _sink: Callable[[tuple], None] | None = None
-#: The unit under way in this process, ``(call, index)``, when its progress is counted.
-_unit: tuple[int, int] | None = None
+
+
+@dataclass
+class _Under:
+    """The unit under way in this process: its ``call`` and ``index`` (:class:`Counting`'s) and the steps it told."""
+
+    call: int
+    index: int
+    told: int = 0
+
+
+#: The unit under way in this process, when its progress is counted.
+_unit: _Under | None = None
 #: Each :class:`Counting`'s number: a message of an earlier call's unit, still in a pool's pipe, is not counted.
 _CALLS = itertools.count()
 
@@ -32,15 +44,17 @@ class Tally:
 
 
 def unit_work(total: int) -> None:
-    """The unit under way holds ``total`` steps of work: the bar counts them in place of its estimate."""
+    """The unit under way holds ``total`` steps of work besides those it told: the bar counts them in place of its
+    estimate."""
     if _sink is not None and _unit is not None:
-        _sink((*_unit, "work", int(total)))
+        _sink((_unit.call, _unit.index, "work", _unit.told + int(total)))
 
 
 def unit_step(n: int = 1) -> None:
     """The unit under way did ``n`` more steps of its work."""
     if _sink is not None and _unit is not None:
-        _sink((*_unit, "step", int(n)))
+        _unit.told += int(n)
+        _sink((_unit.call, _unit.index, "step", int(n)))
 
 
 def tell_through(put: Callable[[tuple], None]) -> None:
@@ -52,7 +66,7 @@ def tell_through(put: Callable[[tuple], None]) -> None:
 def tracked(fn: Callable[[Any], Any], unit_id: tuple[int, int], unit: Any) -> Any:
     """``fn(unit)``, its progress told as the unit ``unit_id`` (``(call, index)``; what :class:`Counting` submits)."""
     global _unit
-    before, _unit = _unit, unit_id
+    before, _unit = _unit, _Under(*unit_id)
     try:
         return fn(unit)
     finally:

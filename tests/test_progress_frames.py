@@ -45,6 +45,22 @@ def test_each_frame_of_each_method_is_a_step_told_before_its_unit_lands(monkeypa
         assert unit[-1] == ("land", unit[0][1])
 
 
+@pytest.mark.parametrize("workers", [1, 2])
+def test_the_pass_that_suggests_the_key_frames_is_counted_too(monkeypatch, workers):
+    """``--keys suggest:2`` runs pcreg over the clip to choose its key frames: its frames are steps of the unit (they
+    counted nothing, the bar still for a whole pass), and the unit's work then says them beside the methods'."""
+    monkeypatch.setattr(_progress, "Work", _Seen)
+    _Seen.log = []
+    config = StreamConfig(data="synthetic:syn1a,syn2b", frames=6, size=(96, 72), methods=("plain", "unregistered"),
+                          keys="suggest:2")
+    with make_executor(workers) as ex:
+        evaluate(config, executor=ex, show_progress=False)
+    for unit in _per_unit(_Seen.log, 2):
+        i = unit[0][1]
+        assert unit == [*[("tell", i, "step", 1)] * 5, ("tell", i, "work", 5 + 4 * 2), *[("tell", i, "step", 1)] * 8,
+                        ("land", i)]
+
+
 def test_many_classes_count_pcreg_s_frames_and_the_baselines(monkeypatch, shared_data):
     monkeypatch.setattr(_progress, "Work", _Seen)
     _Seen.log = []

@@ -114,7 +114,11 @@ def _key_indices(spec: str, n: int, frames=None, *, backend: str = "reference", 
             return [0]
         if frames is None:
             raise InputError("--keys suggest:N needs the clip's frames")
-        first = label_clip(lambda t: frames[t].image, n, {0: frames[0].labels}, backend=backend, classes=classes)
+        from .stream_methods import counted
+
+        # a pass of pcreg over the clip: its frames are steps of the unit's work on the command's bar
+        first = label_clip(lambda t: frames[t].image, n, {0: frames[0].labels}, backend=backend, classes=classes,
+                           on_frame=counted([0]))
         predicted = {f.index: f.predicted_error for f in first if f.index != 0}
         return sorted([0] + suggest(predicted, [0], k - 1, n))
     values = s.split(",")

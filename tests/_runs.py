@@ -215,6 +215,22 @@ def write_video(path, frames, fourcc: str = "mp4v"):
     return path
 
 
+def video_and_keys(tmp_path, n: int, positions):
+    """A synthetic ``n``-frame 96x72 MJPG video in ``tmp_path`` and a folder ``keys`` there of its frames' labels at
+    ``positions`` (``000006.png`` for frame 6): (the frames, the video, the folder)."""
+    import cv2
+
+    import pcreg
+
+    frames = pcreg.synthetic("syn1a", n, 0, width=96, height=72)
+    video = write_video(tmp_path / "clip.avi", frames, "MJPG")
+    keys = tmp_path / "keys"
+    keys.mkdir()
+    for i in positions:
+        cv2.imwrite(str(keys / f"{i:06d}.png"), frames[i].labels)
+    return frames, video, keys
+
+
 def video_run(tmp_path, frames: int = 3):
     """``pcreg run`` of a synthetic ``frames``-frame 96x72 MP4 in ``tmp_path`` from its first frame's labels:
     (the video, the run's folder)."""

@@ -11,11 +11,10 @@ import cv2
 import numpy as np
 import pytest
 
-import pcreg
 from pcreg.cli import main
 from pcreg.datasets import sources
 from pcreg.pipeline import key_passes
-from _runs import write_video
+from _runs import video_and_keys
 
 
 def _counting(monkeypatch) -> list[int]:
@@ -47,12 +46,7 @@ def _anew(monkeypatch) -> None:
 
 def test_a_video_with_a_key_frame_every_ten_is_decoded_once(tmp_path, monkeypatch):
     n = 60
-    frames = pcreg.synthetic("syn1a", n, 0, width=96, height=72)
-    video = write_video(tmp_path / "clip.avi", frames, "MJPG")
-    keys = tmp_path / "keys"
-    keys.mkdir()
-    for i in range(0, n, 10):
-        cv2.imwrite(str(keys / f"{i:06d}.png"), frames[i].labels)
+    _, video, keys = video_and_keys(tmp_path, n, range(0, n, 10))
     count = _counting(monkeypatch)
     once = _run(video, keys, tmp_path / "once")
     assert count[0] <= n + 1  # the passes' one reading, and the key frame's check at the start
@@ -83,12 +77,7 @@ def test_an_interlaced_video_s_frames_are_the_same_however_the_passes_read_them(
 
 def test_a_run_from_a_later_start_decodes_the_frames_before_it_once(tmp_path, monkeypatch):
     n, start = 40, 20
-    frames = pcreg.synthetic("syn1a", n, 0, width=96, height=72)
-    video = write_video(tmp_path / "clip.avi", frames, "MJPG")
-    keys = tmp_path / "keys"
-    keys.mkdir()
-    for i in (25, 32):  # the first pass begins at the first chosen frame, 20, before the first key frame
-        cv2.imwrite(str(keys / f"{i:06d}.png"), frames[i].labels)
+    _, video, keys = video_and_keys(tmp_path, n, (25, 32))  # the first pass begins at frame 20, before the first key
     count = _counting(monkeypatch)
     args = ["run", str(video), "--labels", str(keys), "--start", str(start), "--confidence"]
     with contextlib.redirect_stdout(io.StringIO()):
@@ -114,12 +103,7 @@ def test_a_refused_run_keeps_no_video_open_while_its_error_is_held(tmp_path):
     from pcreg.pipeline.config import PropagatorConfig
     from pcreg.runs.run import Run, RunRequest
 
-    frames = pcreg.synthetic("syn1a", 12, 0, width=96, height=72)
-    video = write_video(tmp_path / "clip.avi", frames, "MJPG")
-    keys = tmp_path / "keys"
-    keys.mkdir()
-    for i in (6, 9):
-        cv2.imwrite(str(keys / f"{i:06d}.png"), frames[i].labels)
+    _, video, keys = video_and_keys(tmp_path, 12, (6, 9))
     with contextlib.redirect_stdout(io.StringIO()):
         assert main(["run", str(video), "--labels", str(keys), "--start", "4", "--confidence", "--out", str(tmp_path / "o")]) == 0
 

@@ -9,7 +9,7 @@ import cv2
 import pcreg
 from pcreg import _runner
 from pcreg.cli import main
-from _runs import write_video
+from _runs import video_and_keys, write_video
 
 
 def _ways(monkeypatch, args) -> list[tuple]:
@@ -41,12 +41,7 @@ def test_a_video_run_taken_further_shows_the_frames_decoded_on_the_way(tmp_path,
 
 
 def test_a_key_frames_run_that_redoes_a_later_stretch_shows_the_way_to_it(tmp_path, monkeypatch):
-    frames = pcreg.synthetic("syn1a", 12, 0, width=96, height=72)
-    video = write_video(tmp_path / "clip.avi", frames, "MJPG")
-    keys = tmp_path / "keys"
-    keys.mkdir()
-    for i in (0, 4):
-        cv2.imwrite(str(keys / f"{i:06d}.png"), frames[i].labels)
+    frames, video, keys = video_and_keys(tmp_path, 12, (0, 4))
     args = ["run", str(video), "--labels", str(keys), "--out", str(tmp_path / "out")]
     with contextlib.redirect_stdout(io.StringIO()):
         assert main(args) == 0

@@ -25,6 +25,7 @@ _EXPORTS = {
     "VoxelSchedule": "pcreg.registration.icp_options",
     "image_cloud": "pcreg.registration.clouds",
     "load_image": "pcreg.registration.clouds",
+    "load_image_and_mask": "pcreg.registration.clouds",
     "warp": "pcreg.registration.warp",
     "transforms": "pcreg.registration.transforms",
     "crosscheck": "pcreg.implementations.crosscheck",

@@ -36,6 +36,7 @@ from pcreg.registration.api import (
 from pcreg.registration.clouds import (
     image_cloud as image_cloud,
     load_image as load_image,
+    load_image_and_mask as load_image_and_mask,
 )
 from pcreg.registration.config import (
     RegisterConfig as RegisterConfig,

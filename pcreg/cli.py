@@ -336,13 +336,13 @@ def _main(argv: list[str] | None) -> int:
     try:
         return _run_command(args)
     except RegistrationError as exc:  # a refused registration: exit 3 (the JSON form goes to stdout)
-        reason = _one_line(exc)
+        reason = _one_line(exc, limit=1000)  # its advice whole, where an error is cut at 500
         sys.stderr.write(f"pcreg: registration refused: {reason.removeprefix('registration refused: ')}\n")
         if getattr(args, "json", False):
             from .commands._common import print_json
 
             try:
-                print_json({"ok": False, "reason": reason})
+                print_json({"ok": False, "reason": _one_line(exc, limit=None)})
             except BrokenPipeError:
                 return 3
             except OSError as exc:  # stdout on a full disk: said, the refusal's status kept
@@ -476,10 +476,11 @@ def _end(stopping: bool, saved_limit: str | None, previous, *, program: bool = F
         restore_signals(previous)
 
 
-def _one_line(exc: BaseException) -> str:
+def _one_line(exc: BaseException, limit: int | None = 500) -> str:
+    """``exc``'s words on one line, cut to ``limit`` characters (None: whole, as ``--json`` gives a refusal)."""
     # a path that is not UTF-8 holds the file system's escapes (os.fsdecode): shown as \udcXX on any stream
     text = " ".join(str(exc).split()).encode("utf-8", "backslashreplace").decode("utf-8")
-    return (text if len(text) <= 500 else text[:497] + "...") if text else type(exc).__name__
+    return (text if limit is None or len(text) <= limit else text[:limit - 3] + "...") if text else type(exc).__name__
 
 
 if __name__ == "__main__":  # pragma: no cover

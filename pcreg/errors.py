@@ -33,6 +33,12 @@ class StuckOutput(OutputError):
     line reports it and ends the process at once."""
 
 
+class ImageWarning(UserWarning):
+    """What :func:`pcreg.load_image` warns of an image file whose array is not what a viewer shows: transparent
+    pixels kept as pixels, an EXIF orientation, damaged data the decoder guessed around (``pcreg register`` says
+    the same as notes)."""
+
+
 def _one_line(exc: BaseException) -> str:
     """An exception's words on one line, at most 300 characters (its type's name when it says nothing), as a message
     quotes another's: a scheduler's or worker's refusal, an implementation's failure."""

@@ -450,11 +450,11 @@ class FrameImages:
         if not 0 <= t < len(self.review.names):
             raise IndexError(t)
         if self._thread is None:
-            from .registration.clouds import load_image
+            from .registration.clouds import load_image_and_alpha
 
             if self.where is None:
                 raise ValueError("a video's frames by position need a cache folder (or read them in order: frames())")
-            return load_image(self.where(t))
+            return load_image_and_alpha(self.where(t))[0]  # as load_image converts it, without its warnings
         with self._cond:
             if not self._have[t]:
                 self._wanted = t

@@ -199,7 +199,8 @@ def test_an_image_transparent_everywhere_is_bad_input_naming_its_file(pair, tmp_
         assert p.returncode == 2 and p.stderr.splitlines() == [
             f"pcreg: error: {tmp_path / 'clear.png'}: every pixel is transparent (alpha 0 everywhere): nothing to "
             "register"], p.stderr
-    np.testing.assert_array_equal(pcreg.load_image(tmp_path / "clear.png"), ref[:, :, ::-1])
+    with pytest.warns(pcreg.errors.ImageWarning, match=r"clear\.png: 100% of its pixels are transparent \(alpha 0\)"):
+        np.testing.assert_array_equal(pcreg.load_image(tmp_path / "clear.png"), ref[:, :, ::-1])
 
 
 def test_a_16_bit_image_of_8_bit_values_is_refused_saying_so(pair, tmp_path):
@@ -225,6 +226,32 @@ def test_a_16_bit_image_of_8_bit_values_is_refused_saying_so(pair, tmp_path):
     with pytest.raises(pcreg.errors.RegistrationError, match=r"^the moving image has no usable edges: its 16-bit values "
                        r"lie in \d+\.\.\d+, only the lowest 8 of its 16 bits"):
         pcreg.register(ref[:, :, ::-1], ref[:, :, ::-1].astype(np.uint16))
+
+
+def test_a_16_bit_image_read_nearly_black_is_said_first_in_any_refusal_and_noted_on_a_result(tmp_path):
+    """A grey 16-bit pair using the lowest 10 bits (0..738 of 65535, read as 0..3 of 255) is refused as unrelated: the
+    refusal says first that the images read nearly black (it advised --min-inlier-ratio 0 alone, whose result on
+    such images was hundreds of px off); a pair that registers notes it, and --json's reason is the whole refusal."""
+    base = pcreg.synthetic("syn2a", n_frames=1)[0].image
+    T = tf.about_point(tf.rigid2d(-20.0, 15.0, 8.0), tf.image_center(base.shape))
+    moved, _ = pcreg.warp(base, np.linalg.inv(T))
+    paths = {}
+    for k in (3, 4):
+        for name, img in (("ref", base), ("mov", moved)):
+            paths[k, name] = tmp_path / f"x{k}_{name}.png"
+            cv2.imwrite(str(paths[k, name]), cv2.cvtColor(img, cv2.COLOR_RGB2GRAY).astype(np.uint16) * k)
+    p = run("register", paths[3, "ref"], paths[3, "mov"], "--json")
+    assert p.returncode == 3, p.stderr
+    reason = json.loads(p.stdout)["reason"]
+    assert reason.startswith(f"registration refused: {paths[3, 'ref']}: its 16-bit values lie in 12..738, only the lowest "
+                             f"10 of its 16 bits, which read as 0..3 of 255 (nearly black); stretch them over the 16 bits "
+                             f"or store the image as 8-bit; {paths[3, 'mov']}: its 16-bit values lie in "), reason
+    assert len(reason) > 500 and p.stderr == f"pcreg: registration refused: {reason.removeprefix('registration refused: ')}\n"
+    p = run("register", paths[4, "ref"], paths[4, "mov"], "--json")
+    assert p.returncode == 0, p.stderr
+    out = json.loads(p.stdout)
+    assert tf.max_corner_error(np.array(out["matrix"]), T, base.shape) < 0.5
+    assert [n.split(": its")[0] for n in out["notes"]] == [str(paths[4, "ref"]), str(paths[4, "mov"])], out["notes"]
 
 
 def test_an_image_too_small_for_the_pyramid_is_named_by_its_file(pair, tmp_path):

@@ -5,6 +5,7 @@ PcregError; nothing else, and never hangs."""
 from __future__ import annotations
 
 import io
+import warnings
 from pathlib import Path
 
 import cv2
@@ -62,9 +63,12 @@ SUFFIX = {"png": ".png", "jpg": ".jpg", "ply": ".ply", "ply_ascii": ".ply", "pcd
 
 def _load(kind: str, path: Path):
     if kind in ("png", "jpg"):
+        from pcreg.errors import ImageWarning
         from pcreg.registration.clouds import load_image
 
-        img = load_image(path)
+        with warnings.catch_warnings():  # a damaged JPEG is read and warned of (pcreg.errors.ImageWarning)
+            warnings.simplefilter("ignore", ImageWarning)
+            img = load_image(path)
         assert img.dtype == np.uint8 and img.ndim == 3 and img.shape[2] == 3
         return img
     if kind.startswith(("ply", "pcd", "npy", "csv", "txt")):

@@ -3,6 +3,7 @@ reader gives the pixels the file stores, the same for one file, and a refusal na
 
 import json
 import struct
+import warnings
 
 import cv2
 import numpy as np
@@ -47,7 +48,11 @@ def test_a_tiff_with_an_orientation_tag_reads_as_stored_like_a_jpeg(tmp_path, ca
     stored = rgb.astype(depth) * (257 if depth is np.uint16 else 1)
     for orientation in range(1, 9):
         (tmp_path / f"o{orientation}.tif").write_bytes(_tiff(stored, orientation))
-        np.testing.assert_array_equal(pcreg.load_image(tmp_path / f"o{orientation}.tif"), rgb)
+        with warnings.catch_warnings(record=True) as said:  # as pcreg register notes it (below)
+            warnings.simplefilter("always")
+            np.testing.assert_array_equal(pcreg.load_image(tmp_path / f"o{orientation}.tif"), rgb)
+        assert [str(w.message).split(" has viewers")[0] for w in said] == (
+            [] if orientation == 1 else [f"{tmp_path / f'o{orientation}.tif'}'s EXIF orientation {orientation}"])
     cv2.imwrite(str(tmp_path / "stored.png"), rgb[:, :, ::-1])
     for orientation in (3, 6):
         assert main(["register", str(tmp_path / "stored.png"), str(tmp_path / f"o{orientation}.tif"), "--json",

@@ -63,3 +63,23 @@ def test_pcreg_register_says_when_the_images_repeat(tmp_path, capsys):
     assert main(["register", str(ref), str(mov), "--json"]) == 0
     out = capsys.readouterr()
     assert "repeats itself" not in out.err and json.loads(out.out)["notes"] == []
+
+
+def test_the_python_api_marks_a_result_on_images_that_repeat():
+    """``pcreg.register`` keeps what ``pcreg register`` notes: ``evidence.repeats``, and ``trusted`` False, since a
+    result a period off lines up as many edges; with the checks off nothing is said (the streams)."""
+    tiles = _tiles()
+    result = pcreg.register(tiles, np.roll(tiles, (30, 29), axis=(0, 1)))
+    found = result.evidence.repeats
+    assert found is not None and found.image == "reference" and found.correlation >= 0.9, found
+    assert abs(np.hypot(*found.shift_px) - 48) <= 2 and not result.trusted
+    assert result.to_dict()["repeats"] == {"image": "reference", "shift_px": list(found.shift_px),
+                                           "correlation": found.correlation}
+    assert result.model_fits is not False  # the model check alone passes it: nothing else marked it
+    untested = pcreg.register(tiles, np.roll(tiles, (30, 29), axis=(0, 1)), config=pcreg.RegisterConfig.of(min_inlier_ratio=None))
+    assert untested.evidence.repeats == found and not untested.trusted  # no plausibility test tells a period either
+    frame = pcreg.synthetic("syn2a", n_frames=1)[0].image
+    plain = pcreg.register(frame, np.roll(frame, (3, 5), axis=(0, 1)))
+    assert plain.evidence.repeats is None and plain.trusted and "repeats" not in plain.to_dict()
+    unchecked = pcreg.register(tiles, np.roll(tiles, (30, 29), axis=(0, 1)), config=pcreg.RegisterConfig.of(model_check=False))
+    assert unchecked.evidence.repeats is None

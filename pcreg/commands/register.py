@@ -100,7 +100,8 @@ def run(args: argparse.Namespace) -> int:
         out = Path(args.out)
         remove_leftovers(out.parent, [out.name])  # a temporary file of a register killed while it wrote this name
         atomic_write_bytes(out, buf.tobytes())
-    notes = _notes(result, args.model, ((args.reference, ref_damage, ref), (args.moving, damage, mov)))
+    notes = [*_notes(result, args.model, ((args.reference, ref_damage, ref), (args.moving, damage, mov))),
+             *_dark_notes(((args.reference, ref_stored), (args.moving, stored)))]
     if args.json:
         print_json({"ok": True, **result.to_dict(), "notes": notes})
     else:
@@ -151,7 +152,9 @@ def _check_arguments(args: argparse.Namespace) -> None:
 def _naming_its_file(exc: Exception, images) -> Exception:
     """``exc`` of the same type with the file named, when it names "the reference image" or "the moving image"
     (``images``: each one's path and array as its file stores it); an image refused for having no edges says
-    when its 16-bit values use only the lowest bits (:func:`pcreg.frame.low_bits_note`)."""
+    when its 16-bit values use only the lowest bits (:func:`pcreg.frame.low_bits_note`), and so does any other
+    refused registration, first: nearly black, the images' edges are too faint to line up."""
+    from ..errors import RegistrationError
     from ..frame import low_bits_note
 
     said = str(exc)
@@ -159,7 +162,18 @@ def _naming_its_file(exc: Exception, images) -> Exception:
         if said.startswith(role):
             dark = low_bits_note(stored) if said.startswith(f"{role} has no usable edges") else ""
             return type(exc)(f"{path}: {role} has no usable edges: {dark}" if dark else f"{path}: {said}")
+    dark_notes = _dark_notes(images)
+    if isinstance(exc, RegistrationError) and dark_notes:
+        return type(exc)(f"registration refused: {'; '.join(dark_notes)}; {said.removeprefix('registration refused: ')}")
     return exc
+
+
+def _dark_notes(images) -> list[str]:
+    """What is said of each image (``images``: its path and array as its file stores it) whose 16-bit values use
+    only the lowest bits (:func:`pcreg.frame.low_bits_note`), registered or refused."""
+    from ..frame import low_bits_note
+
+    return [f"{path}: {dark}" for path, stored in images if (dark := low_bits_note(stored))]
 
 
 def _summary(result, model: str, *, tested: bool = True) -> str:
@@ -194,7 +208,7 @@ def _notes(result, model: str, images) -> list[str]:
     of damaged data, its array) damage, an EXIF orientation, and a pattern that repeats under a shift."""
     return [*_model_fit_notes(result, model), *_feature_notes(result),
             *_file_notes([(path, damage) for path, damage, _ in images]),
-            *_repeat_notes([(path, image) for path, _, image in images])]
+            *_repeat_notes([(path, image) for path, _, image in images], result)]
 
 
 def _model_fit_notes(result, model: str) -> list[str]:
@@ -243,20 +257,22 @@ def _file_notes(files, command: str = "registers") -> list[str]:
     return notes
 
 
-def _repeat_notes(images) -> list[str]:
-    """A note when one of the images (``images``: each one's path and array) repeats itself under a
-    shift (:func:`~pcreg.registration.repetition.repeat_shift`): a motion that differs from the result by it
-    aligns the images as well, so the result may be a period off."""
-    from ..registration.repetition import repeat_shift
+def _repeat_notes(images, result=None) -> list[str]:
+    """A note when one of the images (``images``: each one's path and array, the reference first) repeats itself
+    under a shift (``result.evidence.repeats``; without a result or its evidence, a dense one, checked here:
+    :func:`~pcreg.registration.repetition.pair_repeats`): a motion that differs from the result by it aligns the
+    images as well, so the result may be a period off."""
+    from ..registration.repetition import pair_repeats
 
-    for path, image in images:
-        found = repeat_shift(image)
-        if found is not None:
-            dx, dy, ncc = found
-            return [f"{path} repeats itself: shifted by about ({dx:.0f}, {dy:.0f}) px it matches itself "
-                    f"(correlation {ncc:.2f}), so a motion that differs by such a shift aligns the images as well "
-                    "as this one, and the result may be a period off"]
-    return []
+    evidence = getattr(result, "evidence", None)
+    found = pair_repeats(images[0][1], images[1][1]) if evidence is None else evidence.repeats
+    if found is None:
+        return []
+    path = images[0][0] if found.image == "reference" else images[1][0]
+    dx, dy = found.shift_px
+    return [f"{path} repeats itself: shifted by about ({dx:.0f}, {dy:.0f}) px it matches itself "
+            f"(correlation {found.correlation:.2f}), so a motion that differs by such a shift aligns the images as well "
+            "as this one, and the result may be a period off"]
 
 
 def _keeps_its_form(stored) -> bool:

@@ -28,6 +28,7 @@ from .inputs import check_cloud
 from .plausibility import CHANCE_FACTOR, MIRROR_FACTOR, MIRROR_OVERLAP, NARROWER, RICHER_MODEL, Plausibility, model_fit
 from .pyramid import CloudPyramid
 from .refine import CoarseToFine
+from .repetition import pair_repeats
 from .result import IcpIteration, ImageEvidence, RegistrationResult
 from .search import CONVINCING_NCC, START_LEVEL, Candidate, GlobalSearch, Hypothesis
 from .steps import IcpSettings, icp_step
@@ -145,7 +146,7 @@ def _register(reference_image, moving_image, *, config: RegisterConfig, model, b
             raise
         evidence, refusal = test.off().check(best, shape=mov_img.shape, moving=moving), exc
     checks = _checks(reference, moving, config, best, test, search, mov_img.shape) if refusal is None else (None, None)
-    checks = (*checks, settling)
+    checks = (*checks, settling, pair_repeats(ref_img, mov_img) if refusal is None and config.plausibility.model_check else None)
     return _result(best, evidence, tried, mirror, backend=config.backend, seconds=time.perf_counter() - start,
                    points=(len(moving[0]), len(reference[0])), checks=checks), refusal
 
@@ -327,7 +328,7 @@ def _global_step(ref: np.ndarray, mov: np.ndarray, global_result, options: Dense
 
 
 def _result(best: Candidate, evidence, tried: list[Candidate], mirror: Candidate | None, *, backend: str,
-            seconds: float, points: tuple[int, int], checks: tuple = (None, None, None)) -> RegistrationResult:
+            seconds: float, points: tuple[int, int], checks: tuple = (None, None, None, None)) -> RegistrationResult:
     """The winner as a :class:`RegistrationResult`; ``info`` lists every hypothesis tried."""
     r = best.refined
     return RegistrationResult(

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from .._signals import _shielded, check_interrupted
-from ..errors import InputError
+from ..errors import ImageWarning, InputError
 from ..frame import FLOAT_FILE_HINT, MIN_SIDE, as_rgb_uint8
 from ..validation import check_bool, check_choice, check_count, check_counts, check_float, check_int, check_path
 
@@ -51,11 +51,38 @@ def load_image(path: str | os.PathLike, *, max_pixels: int | None = None) -> np.
 
     Only regular files are read (a FIFO or device is refused, never waited on); the size in the header
     is checked against ``max_pixels`` (default :func:`pcreg.validation.max_pixels`) before decoding.
+    Where the array is not what a viewer shows, a :class:`~pcreg.errors.ImageWarning` says so: transparent pixels
+    (alpha 0), which the array keeps as pixels and a registration would match (:func:`load_image_and_mask` gives
+    the mask that leaves them out); an EXIF orientation (the array is the pixels as stored); damaged data that the
+    decoder guessed around.
     """
-    from ..formats import read_image_file
+    import warnings
+
+    from ..formats import read_image_file_and_damage
 
     path = check_path(path, "path")
-    return _rgb_and_alpha(read_image_file(path, limit=max_pixels), str(path), max_pixels)[0]
+    stored, damage = read_image_file_and_damage(path, limit=max_pixels)
+    rgb, alpha = _rgb_and_alpha(stored, str(path), max_pixels)
+    if alpha is not None and not np.all(alpha > 0):
+        hidden = float(np.mean(alpha == 0))
+        warnings.warn(f"{path}: {100 * hidden:.3g}% of its pixels are transparent (alpha 0), kept here as pixels that a "
+                      "registration would match; pcreg.load_image_and_mask(path) gives the mask that leaves them out "
+                      "(register(..., reference_mask=, moving_mask=))", ImageWarning, stacklevel=2)
+    _warn_of_file(path, damage)
+    return rgb
+
+
+def _warn_of_file(path, damage: str) -> None:
+    """An :class:`~pcreg.errors.ImageWarning`, to the loader's caller, of damaged data its decoder guessed around
+    (``damage``, what it said) and of an EXIF orientation."""
+    import warnings
+
+    from ..formats import orientation_note
+
+    for said in (f"{path}: its decoder reports damaged data ({damage}): part of the image is the decoder's guess"
+                 if damage else None, orientation_note(path, "reads")):
+        if said is not None:
+            warnings.warn(said, ImageWarning, stacklevel=3)
 
 
 def load_image_and_alpha(path: str | os.PathLike, *, max_pixels: int | None = None
@@ -72,11 +99,16 @@ def load_image_and_mask(path: str | os.PathLike, *, max_pixels: int | None = Non
                         ) -> tuple[np.ndarray, np.ndarray | str]:
     """``(image, mask)``: :func:`load_image`'s image, and the pixels to register: ``"auto"`` (every pixel
     but black padding, :func:`valid_region`) for an image without transparency, else its opaque pixels
-    (alpha above 0) less the padding. A viewer shows nothing where alpha is 0, so nothing there is matched."""
-    from ..formats import read_image_file
+    (alpha above 0) less the padding. A viewer shows nothing where alpha is 0, so nothing there is matched:
+    ``pcreg.register(ref, mov, reference_mask=ref_mask, moving_mask=mov_mask)`` registers two files as
+    ``pcreg register`` does. Warns of an EXIF orientation and of damaged data as :func:`load_image` does."""
+    from ..formats import read_image_file_and_damage
 
     path = check_path(path, "path")
-    return image_and_mask(read_image_file(path, limit=max_pixels), str(path), limit=max_pixels)
+    stored, damage = read_image_file_and_damage(path, limit=max_pixels)
+    loaded = image_and_mask(stored, str(path), limit=max_pixels)
+    _warn_of_file(path, damage)
+    return loaded
 
 
 def image_and_mask(img: np.ndarray, name: str, *, limit: int | None = None) -> tuple[np.ndarray, np.ndarray | str]:

@@ -10,8 +10,13 @@ coins.png's rows of coins); a pattern that repeats peaks again, near 1, one peri
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import cv2
 import numpy as np
+
+if TYPE_CHECKING:
+    from .result import Repetition
 
 SIDE = 256
 """The longer side (px) the image is reduced to before it is correlated with itself."""
@@ -49,3 +54,18 @@ def repeat_shift(image: np.ndarray) -> tuple[float, float, float] | None:
         if best is None or np.hypot(dx, dy) < np.hypot(best[0], best[1]):
             best = (float(dx), float(dy), float(away[ys[top], xs[top]]))
     return best
+
+
+def pair_repeats(reference: np.ndarray, moving: np.ndarray) -> Repetition | None:
+    """The first image of a registered pair that repeats itself (:func:`repeat_shift`) as a
+    :class:`~pcreg.registration.result.Repetition` (``image`` ``"reference"`` or ``"moving"``), or None: what
+    :func:`pcreg.register` keeps in ``evidence.repeats`` with the model check on, with or without the plausibility
+    test, since no test tells a result from one a period off."""
+    from .result import Repetition
+
+    for name, image in (("reference", reference), ("moving", moving)):
+        found = repeat_shift(image)
+        if found is not None:
+            dx, dy, correlation = found
+            return Repetition(name, (dx, dy), correlation)
+    return None

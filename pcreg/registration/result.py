@@ -57,6 +57,8 @@ class ImageEvidence:
     model_fit : the result against a projective refinement of it (:class:`ModelFit`), or None.
     features : the result against the homography of SIFT matches (:class:`FeatureCheck`), or None.
     settling : the result refined again from starts a few px off (:class:`Settling`), or None.
+    repeats : an image that repeats itself under a shift (:class:`Repetition`), or None where neither does or the
+        checks were off.
     """
 
     inlier_ratio: float
@@ -66,6 +68,7 @@ class ImageEvidence:
     model_fit: "ModelFit | None" = None
     features: "FeatureCheck | None" = None
     settling: "Settling | None" = None
+    repeats: "Repetition | None" = None
 
 
 @dataclass(frozen=True)
@@ -138,6 +141,25 @@ class Settling:
     def to_dict(self) -> dict:
         return {"shift_px": self.shift_px, "inlier_ratio": self.inlier_ratio,
                 "result_inlier_ratio": self.result_inlier_ratio, "taken": self.taken}
+
+
+@dataclass(frozen=True)
+class Repetition:
+    """An image of the pair that matches itself under a shift (:attr:`ImageEvidence.repeats`,
+    :func:`pcreg.registration.repetition.repeat_shift`): tiles, a grid, a brick wall. A motion that differs from the
+    result by that shift aligns the images as well, so the result may be a period off; nothing in the images tells.
+
+    image : ``"reference"`` or ``"moving"`` (the reference when both repeat).
+    shift_px : (dx, dy), the shortest such shift (px).
+    correlation : the image's correlation with itself under it (at least 0.9).
+    """
+
+    image: str
+    shift_px: tuple[float, float]
+    correlation: float
+
+    def to_dict(self) -> dict:
+        return {"image": self.image, "shift_px": [float(v) for v in self.shift_px], "correlation": float(self.correlation)}
 
 
 @dataclass(frozen=True, repr=False)
@@ -252,10 +274,12 @@ class RegistrationResult:
 
     @property
     def trusted(self) -> bool:
-        """False where a check of the result marked it (:attr:`model_fits` or :attr:`features_agree` False), or
-        where the clouds leave the transform free (``info["unconstrained"]``, a cross-checked implementation's pose
-        on too few, coincident or collinear points: :meth:`pcreg.implementations.Implementation.run`)."""
-        return (self.model_fits is not False and self.features_agree is not False
+        """False where a check of the result marked it (:attr:`model_fits` or :attr:`features_agree` False, or an
+        image that repeats itself, ``evidence.repeats``: the result may be a period off), or where the clouds leave
+        the transform free (``info["unconstrained"]``, a cross-checked implementation's pose on too few, coincident
+        or collinear points: :meth:`pcreg.implementations.Implementation.run`)."""
+        repeats = None if self.evidence is None else self.evidence.repeats
+        return (self.model_fits is not False and self.features_agree is not False and repeats is None
                 and not (self.info or {}).get("unconstrained"))
 
     @property
@@ -280,10 +304,11 @@ class RegistrationResult:
     def to_dict(self) -> dict:
         """JSON-ready dict (``matrix`` as a list of rows; ``model_fit`` where the model was checked, ``features``
         where the result was checked against features, ``settling`` where it was refined again from starts a few
-        px off)."""
+        px off, ``repeats`` where an image repeats itself)."""
         fit = None if self.evidence is None else self.evidence.model_fit
         check = None if self.evidence is None else self.evidence.features
         settling = None if self.evidence is None else self.evidence.settling
+        repeats = None if self.evidence is None else self.evidence.repeats
         return {
             "matrix": self.matrix.tolist(),
             "fitness": float(self.fitness),
@@ -300,6 +325,7 @@ class RegistrationResult:
             **({} if fit is None else {"model_fit": fit.to_dict()}),
             **({} if check is None else {"features": check.to_dict()}),
             **({} if settling is None else {"settling": settling.to_dict()}),
+            **({} if repeats is None else {"repeats": repeats.to_dict()}),
         }
 
 

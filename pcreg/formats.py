@@ -527,6 +527,8 @@ def _decoded(data: bytes | bytearray, name: str, *, flags: int | None, limit: in
     if data[:4] in (b"II*\x00", b"MM\x00*"):  # OpenCV turns a TIFF by its Orientation tag whatever the flags
         data = _tiff_as_stored(data)
     img, said = imdecode_quietly(data, cv2.IMREAD_UNCHANGED if flags is None else flags)
+    if img is None and data[:2] == b"\xff\xd8" and data[-2:] != b"\xff\xd9":  # a JPEG without its end marker
+        img, said = _jpeg_without_its_end(data, name, cv2.IMREAD_UNCHANGED if flags is None else flags)
     if isinstance(img, Exception):
         raise InputError(f"{name}: cannot decode image ({_cv2_message(img)})") from None
     if img is None or img.size == 0:
@@ -538,6 +540,16 @@ def _decoded(data: bytes | bytearray, name: str, *, flags: int | None, limit: in
         # alpha mask is 0, as Windows' screenshots have it); browsers show such a BMP opaque
         img = img[:, :, :3]
     return img, said
+
+
+def _jpeg_without_its_end(data: bytes | bytearray, name: str, flags: int) -> tuple:
+    """A JPEG whose last two bytes (its end-of-image marker) are missing, which OpenCV refuses and viewers show: decoded
+    with the marker put back where its data is whole (the image it would be with it), else an :class:`InputError`
+    that says it was cut short (its data ends before the image does)."""
+    img, said = imdecode_quietly(bytes(data) + b"\xff\xd9", flags)
+    if isinstance(img, np.ndarray) and img.size and not said:
+        return img, ""
+    raise InputError(f"{name}: cannot decode image (a JPEG cut short: its data ends before the image does)")
 
 
 def imdecode_quietly(data: bytes, flags: int) -> tuple:

@@ -252,3 +252,22 @@ def test_a_tiff_whose_second_image_has_no_size_is_bad_input_not_a_bug(tmp_path, 
     cv2.imwrite(str(tmp_path / "photo.png"), rgb[:, :, ::-1])
     np.testing.assert_array_equal(pcreg.load_image(tmp_path / "damaged.tif"), rgb)
     assert main(["register", str(tmp_path / "photo.png"), str(tmp_path / "damaged.tif")]) == 0, capsys.readouterr().err
+
+
+def test_a_jpeg_missing_only_its_end_marker_reads_whole_and_one_cut_short_is_refused_saying_so(tmp_path):
+    """A JPEG whose last two bytes (FF D9, the end-of-image marker) are missing holds all its data, and viewers show
+    it: OpenCV refused it ("cannot decode image (corrupt or truncated)"). It reads as the whole file does, baseline
+    or progressive; one cut before its data ends is refused, saying it was cut short."""
+    rgb = shapes_image()
+    for progressive in (0, 1):
+        data = cv2.imencode(".jpg", rgb[:, :, ::-1], [cv2.IMWRITE_JPEG_PROGRESSIVE, progressive])[1].tobytes()
+        (tmp_path / "whole.jpg").write_bytes(data)
+        (tmp_path / "no_end.jpg").write_bytes(data[:-2])
+        (tmp_path / "cut.jpg").write_bytes(data[: len(data) * 2 // 3])
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # nothing to warn of: every byte of the image is there
+            np.testing.assert_array_equal(pcreg.load_image(tmp_path / "no_end.jpg"), pcreg.load_image(tmp_path / "whole.jpg"))
+        with pytest.raises(pcreg.InputError, match=r"cut\.jpg: cannot decode image \(a JPEG cut short: its data ends "
+                                                   r"before the image does\)"):
+            pcreg.load_image(tmp_path / "cut.jpg")
+    assert main(["register", str(tmp_path / "whole.jpg"), str(tmp_path / "no_end.jpg")]) == 0

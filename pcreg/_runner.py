@@ -54,8 +54,8 @@ class InlineExecutor(Executor):
 
 
 def _worker_init(workers: int = 1, parent: int | None = None, steps: Any = None) -> None:
-    """In a local worker process of a pool of ``workers``: the parent handles Ctrl-C (the terminal sends
-    SIGINT to the whole process group) and stops the workers itself; SIGTERM ends a worker at once, and so
+    """In a local worker process of a pool of ``workers``: the parent handles Ctrl-C and a closed terminal (the
+    terminal sends SIGINT or SIGHUP to the whole process group) and stops the workers itself; SIGTERM ends a worker at once, and so
     does the end of ``parent`` (its process id), however it ended (:func:`~pcreg._signals.end_with_parent`). The
     helper thread (:mod:`pcreg._threads`) is used only where the CPUs leave two to each worker: the
     pool already gives the others theirs. ``steps``: the pool's pipe of the units' progress
@@ -68,6 +68,7 @@ def _worker_init(workers: int = 1, parent: int | None = None, steps: Any = None)
         _progress.tell_through(steps.put)
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)  # a closed terminal's, sent to the group too: the parent stops them
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     if parent is not None:
         _signals.end_with_parent(_signals.parent_death_signal(), parent, signal.SIGKILL)

@@ -1,4 +1,4 @@
-"""Ctrl-C and SIGTERM in a pcreg command: the handler that turns them into KeyboardInterrupt, the checks that
+"""Ctrl-C, SIGTERM and SIGHUP in a pcreg command: the handler that turns them into KeyboardInterrupt, the checks that
 raise it again where it was swallowed, and the watchdog that ends a stop that does not end by itself.
 
 Signal handlers are the process's: what they note is held at module level, one per process. Used by the
@@ -105,7 +105,8 @@ def _unraisable(unraisable) -> None:
 
 
 def interrupt_on_signals() -> dict:
-    """SIGINT (Ctrl-C) and SIGTERM raise KeyboardInterrupt in the main thread; returns the handlers they
+    """SIGINT (Ctrl-C), SIGTERM and SIGHUP (the terminal or ssh session closed; not where the process started with
+    it ignored, as ``nohup`` starts it) raise KeyboardInterrupt in the main thread; returns the handlers they
     replace (for :func:`restore_signals`). Call it from the main thread.
 
     SIGINT is handled even when this process started with it ignored: a shell without job control (a
@@ -121,7 +122,8 @@ def interrupt_on_signals() -> dict:
     _put_watchdog_away()  # one started by an earlier command in this process, and never put back
     _SHIELDED[0] = 0
     previous: dict = {}
-    for signum in (signal.SIGINT, signal.SIGTERM):
+    hangup = [] if signal.getsignal(signal.SIGHUP) is signal.SIG_IGN else [signal.SIGHUP]  # nohup's ignore kept
+    for signum in (signal.SIGINT, signal.SIGTERM, *hangup):
         try:
             previous[signum] = signal.signal(signum, _on_signal)
         except (ValueError, OSError):  # not the main thread
@@ -151,7 +153,7 @@ def restore_signals(previous: dict) -> None:
 
 
 def ignore_signals() -> None:
-    """Ignore SIGINT and SIGTERM from now on: a program that is already stopping on one (exit 130) must
+    """Ignore SIGINT, SIGTERM and SIGHUP from now on: a program that is already stopping on one (exit 130) must
     not be killed by a second one (a terminal's Ctrl-C pressed twice, a signal sent to the whole process
     group) while Python shuts down, which would end it with the signal instead of its exit code; nor one whose
     command has ended, or has committed its one output and only says so (``pcreg export``, ``view --overlay``):
@@ -159,7 +161,7 @@ def ignore_signals() -> None:
     has flushed its output at exit) be killed without a word. Python's shutdown keeps an ignored signal ignored."""
     import signal
 
-    for signum in (signal.SIGINT, signal.SIGTERM):
+    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         try:
             signal.signal(signum, signal.SIG_IGN)
         except (ValueError, OSError):  # not the main thread
@@ -185,7 +187,7 @@ def handles_signals() -> bool:
 
 
 def interrupted() -> bool:
-    """Whether a SIGINT or SIGTERM arrived since :func:`interrupt_on_signals`."""
+    """Whether a SIGINT, SIGTERM or SIGHUP arrived since :func:`interrupt_on_signals`."""
     return bool(_RECEIVED)
 
 

@@ -5,7 +5,7 @@ that says so, or the whole traceback with ``PCREG_TRACEBACK=1``); 2 bad input (a
 :class:`pcreg.errors.PcregError` other than a refused registration, bad options, or an ``OSError``: the file
 system refused, a full disk or a folder where a file goes; one line on stderr);
 3 a refused registration (:class:`pcreg.errors.RegistrationError`; with ``--json``, the object
-``{"ok": false, "reason": ...}`` is printed on stdout as well); 130 interrupted (Ctrl-C or SIGTERM).
+``{"ok": false, "reason": ...}`` is printed on stdout as well); 130 interrupted (Ctrl-C, SIGTERM, or SIGHUP: its terminal closed).
 Each command lives in its own module under ``pcreg.commands`` and exposes
 ``add_arguments(parser)`` and ``run(args) -> int``; heavy imports happen inside ``run``.
 """
@@ -137,6 +137,31 @@ def _usable_streams() -> None:
             stream.reconfigure(errors="backslashreplace")
     if not _STDOUT_CLOSED:
         sys.stdout = _NamedStdout(sys.stdout)
+    sys.stderr = _SpokenStderr(sys.stderr)
+
+
+class _SpokenStderr:
+    """The program's stderr, whose refused write (``2>/dev/full``) is dropped: nothing is left to say it on, and the
+    command's exit status still says how it ended (a bad input's 2 became 1, a bug, as Python reported the failed
+    write of its line)."""
+
+    def __init__(self, stream) -> None:
+        self._stream = stream
+
+    def __getattr__(self, name: str):
+        return getattr(self._stream, name)
+
+    def write(self, text: str) -> int:
+        try:
+            return self._stream.write(text)
+        except OSError:
+            return len(text)
+
+    def flush(self) -> None:
+        try:
+            self._stream.flush()
+        except OSError:
+            pass
 
 
 class _NamedStdout:

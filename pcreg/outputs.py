@@ -88,6 +88,25 @@ def atomic_file(path: str | os.PathLike) -> Iterator[BinaryIO]:
     without an exception and is removed otherwise: a file too large to hold in memory (an archive of
     thousands of frames) written as it is made, yet appearing whole or not at all. A write that fails (a
     full disk, a folder in the way) is an :class:`~pcreg.errors.OutputError` naming ``path``."""
+    with _beside(path) as (fd, _), os.fdopen(fd, "wb", closefd=False) as fh:
+        yield fh
+        fh.flush()
+
+
+@contextmanager
+def atomic_path(path: str | os.PathLike) -> Iterator[str]:
+    """:func:`atomic_file` for a writer that opens the file by its name: the temporary file's path. FFmpeg's muxer
+    writes so; through a Python file, a full disk's error reached it inside PyAV's callback and came back as "Error
+    in PyAV callback", or was printed as an exception "being dropped"."""
+    with _beside(path) as (_, tmp):
+        yield tmp
+
+
+@contextmanager
+def _beside(path: str | os.PathLike) -> Iterator[tuple[int, str]]:
+    """The temporary file beside ``path`` of :func:`atomic_file` and :func:`atomic_path` (its descriptor, which holds
+    its lock, and its path), synced and put in ``path``'s place once the block ends without an exception, else
+    removed; a write that fails is an :class:`~pcreg.errors.OutputError` naming ``path``."""
     path = Path(path)
     check_held(path)  # before the folder is made again
     try:
@@ -96,11 +115,12 @@ def atomic_file(path: str | os.PathLike) -> Iterator[BinaryIO]:
     except OSError as exc:
         raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
     try:
-        with os.fdopen(fd, "wb") as fh:
-            yield fh
-            fh.flush()
-            os.fsync(fh.fileno())
+        try:
+            yield fd, tmp
+            os.fsync(fd)
             publish(tmp, path)  # while the lock is held: a cleaner does not take a file about to be published
+        finally:
+            os.close(fd)
     except BaseException as exc:
         try:
             os.unlink(tmp)
@@ -210,6 +230,15 @@ def _fmt_cell(v: Any) -> Any:
 #: Characters a table cell's text would be read as Markdown by (a column break, emphasis, code, a link),
 #: each written after a backslash; also ``<`` and ``&`` where they would open an HTML tag or an entity.
 _MARKDOWN_SPECIAL = frozenset("\\|*`[]")
+
+
+def shell_word(path: str | os.PathLike) -> str:
+    """``path`` as a command a person pastes takes it: quoted (:func:`shlex.quote`), and led by ``./`` where it begins
+    with a dash, which the command would read as an option (``--out=-o2``'s ``pcreg view -o2 --web``)."""
+    import shlex
+
+    text = os.fspath(path)
+    return shlex.quote(f"./{text}" if text.startswith("-") else text)
 
 
 def markdown_text(text: Any) -> str:
@@ -366,6 +395,9 @@ class OutputLock:
 
         if self.folder.exists() and not self.folder.is_dir():
             raise OutputError(f"{self.folder} exists and is not a folder")
+        if self.folder.is_symlink() and not self.folder.exists():  # mkdir said "File exists" of it
+            raise OutputError(f"{self.folder} is a symbolic link to {os.readlink(self.folder)}, which does not exist: "
+                              "make that folder, or choose another --out")
         try:
             self._made = [p for p in (self.folder, *self.folder.parents) if not p.exists()]
             self.folder.mkdir(parents=True, exist_ok=True)

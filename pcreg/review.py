@@ -18,7 +18,6 @@ frames between), and at once the next time the run is reviewed.
 
 from __future__ import annotations
 
-import shlex
 import threading
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,6 +27,7 @@ import numpy as np
 
 from .classes import DEFAULT_TABLE, ClassTable
 from .errors import InputError
+from .outputs import shell_word
 from .validation import check_float
 from .formats import loads_json
 from .runs.files import StepTruth, finite_figure, step_class_iou
@@ -173,7 +173,7 @@ def read_review(folder: str | Path) -> RunReview:
     table = run_table(run, str(state_path))
     if not source.exists():
         raise InputError(f"{state_path}: the run's {kind} {source} is gone (the frames are read from there); moved with its project? the same "
-                         f"pcreg run with the {kind}'s new path and --out {shlex.quote(str(folder))} names the new places in run.json, and goes on from what was labelled")
+                         f"pcreg run with the {kind}'s new path and --out {shell_word(folder)} names the new places in run.json, and goes on from what was labelled")
     frames = open_frames(source, selection)
     if labelled is None:  # a run from one label image labels its frames in order
         done = min(count, len(frames)) if isinstance(frames, FolderFrames) else count
@@ -543,7 +543,7 @@ def write_overlay_video(review: RunReview, path: str | Path, *, fps: float | Non
     import av
 
     from ._runner import progress
-    from .outputs import atomic_file, remove_leftovers
+    from .outputs import atomic_path, remove_leftovers
 
     if not review.names:  # an MP4 of no frame is no video a player opens
         raise InputError(f"{review.folder}: holds no labelled frame: no overlay video to write")
@@ -555,7 +555,7 @@ def write_overlay_video(review: RunReview, path: str | Path, *, fps: float | Non
     small: str | None = None  # told once the video is written: a video refused says one line, its refusal
     images = FrameImages(review)  # no thread: a video is read through frames()
     try:
-        with atomic_file(path) as fh, av.open(fh, "w", format="mp4") as container, \
+        with atomic_path(path) as tmp, av.open(tmp, "w", format="mp4") as container, \
                 progress(total=len(review.names), desc="frames", disable=None) as bar:
             if review.said():  # what the run's review says of its frames, one line each, in the video's comment
                 container.metadata["comment"] = "\n".join(review.said())

@@ -116,7 +116,8 @@ def start_signalled(where: str, args: list, tmp: Path, pattern: str = "") -> sub
 
 def signal_and_check(p: subprocess.Popen, how: str, out: Path | None) -> str:
     """Send the signal (``group``: SIGINT to the process group, as Ctrl-C; ``parent``: SIGINT to the
-    command alone; ``term``: SIGTERM to the command alone; ``self``: none, the command signals itself),
+    command alone; ``term``: SIGTERM to the command alone; ``hangup``: SIGHUP to the process group, as a closed
+    terminal or ssh session sends it; ``self``: none, the command signals itself),
     then check the exit and the aftermath: every process of the group ends (waited for through pidfds,
     readable when a process exits), the output lock is free. Returns stderr."""
 
@@ -134,6 +135,8 @@ def signal_and_check(p: subprocess.Popen, how: str, out: Path | None) -> str:
             p.send_signal(signal.SIGINT)
         elif how == "term":
             p.send_signal(signal.SIGTERM)
+        elif how == "hangup":
+            os.killpg(p.pid, signal.SIGHUP)
         _, err = p.communicate(timeout=HANG)
         wait_until_ended(fds, "processes of the command still running {HANG} s after it exited")
     finally:

@@ -1,5 +1,5 @@
-"""Ctrl-C and SIGTERM stop ``pcreg run`` between frames and ``pcreg demo`` in its worker and recording
-phases, and the same command then finishes the work; an interrupt that once escaped an ``exec`` still
+"""Ctrl-C, SIGTERM and SIGHUP (a closed terminal; it ended a run with 129, silent, its temporary files left) stop
+``pcreg run`` between frames and ``pcreg demo`` in its worker and recording phases, and the same command then finishes the work; an interrupt that once escaped an ``exec`` still
 exits 130. The helpers and how the signal is sent: ``_interrupting.py``.
 """
 
@@ -27,7 +27,7 @@ def _done(state: Path) -> int:
         return 0
 
 
-@pytest.mark.parametrize("how", ["group", "term"])
+@pytest.mark.parametrize("how", ["group", "term", "hangup"])
 def test_run_stops_between_frames_and_resumes(tmp_path, how):
     import pcreg
 
@@ -51,7 +51,7 @@ def test_run_stops_between_frames_and_resumes(tmp_path, how):
     assert _done(out / "run.json") == len(frames)
 
 
-@pytest.mark.parametrize("how, workers, at", [("group", 2, "2/6"), ("term", 1, "4/6")])
+@pytest.mark.parametrize("how, workers, at", [("group", 2, "2/6"), ("term", 1, "4/6"), ("hangup", 2, "2/6")])
 def test_demo_stops_and_runs_again(tmp_path, how, workers, at):
     """Stopped in Ch. 5 (units in worker processes) or in Ch. 6-7 (recording in this process); the same
     command then runs to the end, replacing the recording the interrupted run left."""
@@ -64,6 +64,28 @@ def test_demo_stops_and_runs_again(tmp_path, how, workers, at):
     again = subprocess.run([*PCREG, *map(str, args)], capture_output=True, text=True, timeout=HANG)
     assert again.returncode == 0, again.stderr
     assert (out / "report.md").is_file() and (out / "demo.rrd").is_file()
+
+
+def test_a_run_started_under_nohup_goes_on_when_its_terminal_closes(tmp_path):
+    """``nohup`` starts a command with SIGHUP ignored so that it outlives its terminal: pcreg keeps it so."""
+    import signal
+
+    import pcreg
+
+    frames = pcreg.synthetic("syn1a", 12, 0, width=160, height=120)
+    src = tmp_path / "frames"
+    src.mkdir()
+    for i, f in enumerate(frames):
+        cv2.imwrite(str(src / f"f{i:03d}.png"), f.image[:, :, ::-1])
+    cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
+    out = tmp_path / "out"
+    p = start(["run", src, "--labels", tmp_path / "key.png", "--out", out],
+              preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_IGN))
+    wait_for(p, lambda: _done(out / "run.json") >= 2, "two frames committed")
+    os.killpg(p.pid, signal.SIGHUP)
+    _, err = p.communicate(timeout=HANG)
+    assert p.returncode == 0, err
+    assert _done(out / "run.json") == len(frames)
 
 
 def test_an_interrupt_inside_exec_of_a_string_still_exits_130():

@@ -166,6 +166,20 @@ def test_a_key_frame_added_relabels_only_its_stretch_and_suggest_names_the_frame
     assert _err(capsys) == ["pcreg: error: --suggest 4: only 3 frame(s) are not key frames"]
 
 
+def test_a_frame_made_a_key_frame_keeps_no_confidence_map_of_when_it_was_labelled(tmp_path, frames, folder):
+    """With --confidence, a key frame added since holds its key labels and no confidence map, as a run from those key
+    frames at once has it: its map from when it was labelled stayed (the review and the export read it)."""
+    keys = _keys(tmp_path / "keys", frames, [0, 5])
+    args = ["run", str(folder), "--labels", str(keys), "--confidence", "--out"]
+    assert main(args + [str(tmp_path / "out")]) == 0
+    assert (tmp_path / "out" / "confidence" / "f3.png").is_file()
+    _keys(keys, frames, [3])
+    assert main(args + [str(tmp_path / "out")]) == 0
+    assert main(args + [str(tmp_path / "at_once")]) == 0
+    assert not (tmp_path / "out" / "confidence" / "f3.png").exists()
+    assert _outputs(tmp_path / "out") == _outputs(tmp_path / "at_once")
+
+
 def test_bad_labels_folders_and_options_are_refused(tmp_path, frames, folder, capsys):
     out = tmp_path / "out"
     assert main(["run", str(folder), "--labels", str(_keys(tmp_path / "k", frames, [0])), "--out", str(out)]) == 0

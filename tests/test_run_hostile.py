@@ -206,6 +206,13 @@ def test_the_program_runs_with_an_ascii_terminal_and_a_closed_stdout(tmp_path):
         said = p.stderr.decode().splitlines()
         assert p.returncode == 3 and len(said) == 2 and said[0].startswith("pcreg: registration refused: "), said
         assert said[1] == "pcreg: error: No space left on device: standard output"
+        # stderr on a full disk: the line is lost, the exit status still says how the command ended (a bad input's 2
+        # was 1, a bug, as Python reported the failed write of its line)
+        for args, code in ((["run", str(folder), "--labels", str(tmp_path / "no such key.png"), "--out", str(tmp_path / "o")], 2),
+                           ([*command[3:-1], str(tmp_path / "flat.png")], 3), ([*command[3:], "--json"], 0)):
+            with open("/dev/full", "w") as full:
+                p = subprocess.run([sys.executable, "-m", "pcreg", *args], stdout=subprocess.PIPE, stderr=full)
+            assert p.returncode == code, (args, p.returncode)
 
 
 def test_a_rerun_with_other_key_labels_or_fewer_frames_is_refused_and_force_starts_clean(tmp_path, capsys):
@@ -769,3 +776,50 @@ def test_a_recording_path_rerun_cannot_take_is_refused_before_any_label_is_writt
     err = one_line_errors(capsys)
     assert len(err) == 1 and said in err[0], err
     assert not out.exists()
+
+
+def test_the_closing_command_to_review_a_run_whose_folder_begins_with_a_dash_can_be_pasted(tmp_path, monkeypatch, capsys):
+    """``--out=-o2``: the closing line said ``pcreg view -o2 --web``, which pasted reads -o2 as an option (exit 2)."""
+    folder, key = drifting_frames(tmp_path / "frames")
+    monkeypatch.chdir(tmp_path)
+    capsys.readouterr()
+    assert main(["run", str(folder), "--labels", str(key), "--out=-o2"]) == 0
+    hint = capsys.readouterr().out.splitlines()[-1]
+    assert hint == "to review the labels on the frames: pcreg view ./-o2 --web", hint
+    assert main(["view", "./-o2", "--overlay", "o2.mp4"]) == 0  # the folder as the line gives it (--web serves it)
+
+
+def test_an_output_folder_that_is_a_dangling_symbolic_link_is_refused_saying_so(tmp_path, capsys):
+    """It said "cannot write to OUT: File exists" (mkdir's word for a link to nothing)."""
+    import os
+
+    folder, key = drifting_frames(tmp_path / "frames")
+    out = tmp_path / "out"
+    os.symlink(tmp_path / "elsewhere", out)
+    capsys.readouterr()
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(out)]) == 2
+    assert one_line_errors(capsys) == [f"pcreg: error: {out} is a symbolic link to {tmp_path / 'elsewhere'}, which does not "
+                                       "exist: make that folder, or choose another --out"]
+    (tmp_path / "elsewhere").mkdir()
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(out)]) == 0
+    assert (tmp_path / "elsewhere" / "f1.png").is_file()
+
+
+def test_a_run_without_record_does_not_load_rerun(tmp_path):
+    """rerun took a third of a second to load in every run, and under a low limit of open files (ulimit -n 12) its
+    runtime panicked with a 40-line backtrace (exit 134) in a run that records nothing."""
+    import subprocess
+    import sys
+
+    folder, key = drifting_frames(tmp_path / "frames")
+
+    def loaded(*record: str) -> str:
+        args = ["run", str(folder), "--labels", str(key), *record, "--out", str(tmp_path / f"o{len(record)}")]
+        code = (f"import sys; from pcreg.cli import main; assert main({args!r}) == 0; "
+                "print(','.join(m for m in sys.modules if m.split('.')[0] in ('rerun', 'rerun_bindings')))")
+        p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+        assert p.returncode == 0, p.stderr[-2000:]
+        return p.stdout.splitlines()[-1]
+
+    assert loaded() == ""
+    assert "rerun" in loaded("--record", str(tmp_path / "r.rrd"))

@@ -31,7 +31,6 @@ frames before its first and gets every frame bit for bit as an uninterrupted run
 from __future__ import annotations
 
 import re
-import shlex
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Generator, Iterator, TypeVar
@@ -39,6 +38,7 @@ from typing import TYPE_CHECKING, Any, Callable, Generator, Iterator, TypeVar
 import numpy as np
 
 from ..errors import InputError
+from ..outputs import shell_word
 from .video_shown import Turn, as_shown, display_turn, first_interlaced, shown_frames, shown_note, video_duration
 
 if TYPE_CHECKING:
@@ -327,8 +327,8 @@ class VideoFrames:
         listed = ", ".join(f"#{i} {ow}x{oh}" for i, ow, oh in others)
         out = self.path.with_name(f"{self.path.stem}-stream1{self.path.suffix}")
         return (f"{self.path} holds {len(self.streams)} video streams: pcreg reads the first (#{index}, {w}x{h}), not "
-                f"{listed}; to label another, extract it first: ffmpeg -i {shlex.quote(str(self.path))} -map 0:v:1 "
-                f"-c copy {shlex.quote(str(out))}")
+                f"{listed}; to label another, extract it first: ffmpeg -i {shell_word(self.path)} -map 0:v:1 "
+                f"-c copy {shell_word(out)}")
 
     def count(self) -> int | None:
         """How many frames the stream chooses, from the container's count (None if it gives none)."""
@@ -534,7 +534,7 @@ def convert_hint(path: Path) -> str:
     """How to convert the video at ``path`` to one pcreg reads: FFmpeg's command, its first video stream to H.264
     in MP4 (at a quality where labels drawn on it stay where they were)."""
     out = path.with_name(path.stem + ("-converted" if path.suffix.lower() == ".mp4" else "") + ".mp4")
-    return f"convert it with: ffmpeg -i {shlex.quote(str(path))} -map 0:v:0 -c:v libx264 -crf 18 {shlex.quote(str(out))}"
+    return f"convert it with: ffmpeg -i {shell_word(path)} -map 0:v:0 -c:v libx264 -crf 18 {shell_word(out)}"
 
 
 def open_frames(path: str | Path, selection: Selection = Selection()) -> FolderFrames | VideoFrames:

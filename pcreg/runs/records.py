@@ -51,10 +51,16 @@ def run_recording(request, table):
     opened once the run knows it has frames to label: a file there already (the recording of the run as Ctrl-C
     stopped it, which the same command resumes) is refused saying the two ways on, not "exists, use --force"
     alone, which labels every frame again."""
+    import contextlib
+
     from ..errors import OutputError
+    from ..recording.null import NULL_RECORDER
+
+    if not request.record:  # rerun not loaded (a third of a second; under a low limit of open files, a panic)
+        return contextlib.nullcontext(NULL_RECORDER)
     from ..recording.recorder import open_recording
 
-    if request.record is not None and not request.force and Path(request.record).is_file():
+    if not request.force and Path(request.record).is_file():
         raise OutputError(f"{request.record} exists (the recording of this run as it stopped, or another file); to go "
                           "on from there, give another --record file (it holds the frames from there on); to record "
                           "every frame in this one, add --force (the run starts over from the key frame, same labels)")

@@ -435,6 +435,7 @@ class Run:
             if self.state["keys"].get(self.frames.name(k)) != names[self.frames.name(k)] \
                     or label_file_problem(f, lab.shape) is not None:
                 write_labels(f, lab, self.table)
+                (self.out / CONFIDENCE / f.name).unlink(missing_ok=True)  # a key frame has none (labelled before)
         self.state.update(keys=names, stretches=kept, cursor=cursor, lines=lines)
         self.totals()
         self.commit()
@@ -585,10 +586,9 @@ class Run:
 
 def _notes_before_the_first_frame(keys: dict, table, config, frames, pending, read: tuple[str, ...] = ()) -> None:
     """Notes on stderr before the first frame: what reading the inputs met (``read``, :attr:`~pcreg.runs.inputs.
-    RunInputs.notes`), the ``frames``' own (an interlaced video, read deinterlaced), when
-    the run is expected to need more memory than the system has available (:func:`~pcreg.runs.memory.memory_note`),
-    and when the key frame of a run from one (``pending``) holds no more detail than a smaller size would
-    (:func:`~pcreg.datasets.detail.scale_note`)."""
+    RunInputs.notes`), the ``frames``' own (an interlaced video, read deinterlaced), when the run is expected to need
+    more memory than the system has available (:func:`~pcreg.runs.memory.memory_note`), and when the key frame of a
+    run from one (``pending``) holds no more detail than a smaller size would (:func:`~pcreg.datasets.detail.scale_note`)."""
     import sys
 
     from ..datasets.detail import scale_note

@@ -3,13 +3,13 @@ worst, the class predicted worst, the classes the labels lost, and the command t
 
 from __future__ import annotations
 
-import shlex
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
 from ..classes.table import listed_name
+from ..outputs import shell_word
 
 __all__ = ["predicted_summary", "truth_summary", "lost_summary", "key_classes", "LISTED"]
 
@@ -35,7 +35,7 @@ def predicted_summary(steps: dict[int, dict], stem: Callable[[int], str], table,
         c = min(ious, key=lambda c: ious[c][0])
         line += (f"; the class predicted worst: {listed_name(table.name_of(c))}, IoU {ious[c][0]:.2f} on average "
                  f"over the {ious[c][1]} frame(s) that show it")
-    return line + lost + f"\nto review the labels on the frames: pcreg view {shlex.quote(str(out))} --web"
+    return line + lost + f"\nto review the labels on the frames: pcreg view {shell_word(out)} --web"
 
 
 def truth_summary(steps: dict[int, dict], table) -> str:

@@ -6,6 +6,8 @@ The command line turns a :class:`PcregError` into a one-line message and exit co
 
 from __future__ import annotations
 
+from types import FrameType
+
 
 class PcregError(ValueError):
     """Base class of every error pcreg raises on purpose."""
@@ -37,6 +39,20 @@ class ImageWarning(UserWarning):
     """What :func:`pcreg.load_image` warns of an image file whose array is not what a viewer shows: transparent
     pixels kept as pixels, an EXIF orientation, damaged data the decoder guessed around (``pcreg register`` says
     the same as notes)."""
+
+
+def outside_pcreg() -> int:
+    """The ``stacklevel`` that points a warning the calling function warns at the first line outside pcreg: the
+    user's call, however deep in pcreg it was made (``pcreg.crosscheck(path, path)`` reads its images)."""
+    import os
+    import sys
+
+    package = os.path.dirname(os.path.abspath(__file__)) + os.sep
+    frame: FrameType | None = sys._getframe(1)
+    level = 1
+    while frame is not None and frame.f_code.co_filename.startswith(package):
+        frame, level = frame.f_back, level + 1
+    return level
 
 
 def _one_line(exc: BaseException) -> str:

@@ -396,8 +396,8 @@ class OutputLock:
         if self.folder.exists() and not self.folder.is_dir():
             raise OutputError(f"{self.folder} exists and is not a folder")
         if self.folder.is_symlink() and not self.folder.exists():  # mkdir said "File exists" of it
-            raise OutputError(f"{self.folder} is a symbolic link to {os.readlink(self.folder)}, which does not exist: "
-                              "make that folder, or choose another --out")
+            raise OutputError(f"{self.folder} is a symbolic link to {os.path.realpath(self.folder)}, which does not "
+                              "exist: make that folder, or choose another --out")
         try:
             self._made = [p for p in (self.folder, *self.folder.parents) if not p.exists()]
             self.folder.mkdir(parents=True, exist_ok=True)

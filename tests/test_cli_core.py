@@ -243,10 +243,17 @@ def test_a_16_bit_image_read_nearly_black_is_said_first_in_any_refusal_and_noted
     p = run("register", paths[3, "ref"], paths[3, "mov"], "--json")
     assert p.returncode == 3, p.stderr
     reason = json.loads(p.stdout)["reason"]
-    assert reason.startswith(f"registration refused: {paths[3, 'ref']}: its 16-bit values lie in 12..738, only the lowest "
-                             f"10 of its 16 bits, which read as 0..3 of 255 (nearly black); stretch them over the 16 bits "
-                             f"or store the image as 8-bit; {paths[3, 'mov']}: its 16-bit values lie in "), reason
-    assert len(reason) > 500 and p.stderr == f"pcreg: registration refused: {reason.removeprefix('registration refused: ')}\n"
+    assert reason.startswith(f"registration refused: {paths[3, 'ref']} and {paths[3, 'mov']} read nearly black (16-bit "
+                             "values in the lowest bits: stretch them over the 16 bits or store the image as 8-bit); "), reason
+    assert p.stderr == f"pcreg: registration refused: {reason.removeprefix('registration refused: ')}\n"
+    long = tmp_path / ("a" * 200) / ("b" * 200)  # a refusal longer than 1,000 characters: stderr's line is cut, not the JSON's
+    long.mkdir(parents=True)
+    for name in ("ref", "mov"):
+        paths[3, name].rename(long / paths[3, name].name)
+    p = run("register", long / paths[3, "ref"].name, long / paths[3, "mov"].name, "--json")
+    reason = json.loads(p.stdout)["reason"]
+    assert p.returncode == 3 and len(reason) > 1000 and not reason.endswith("...") and p.stderr.endswith("...\n")
+    assert len(p.stderr) == len("pcreg: registration refused: ") + 1000 - len("registration refused: ") + 1
     p = run("register", paths[4, "ref"], paths[4, "mov"], "--json")
     assert p.returncode == 0, p.stderr
     out = json.loads(p.stdout)

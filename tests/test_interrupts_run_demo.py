@@ -27,16 +27,23 @@ def _done(state: Path) -> int:
         return 0
 
 
-@pytest.mark.parametrize("how", ["group", "term", "hangup"])
-def test_run_stops_between_frames_and_resumes(tmp_path, how):
+def _frames(tmp_path: Path, n: int, width: int, height: int):
+    """``n`` synthetic frames written to ``tmp_path/frames`` as ``f000.png``, ..., and the first one's labels to
+    ``tmp_path/key.png``: (the frames, the folder)."""
     import pcreg
 
-    frames = pcreg.synthetic("syn1a", 60, 0, width=320, height=240)  # about 1.5 s left when it is stopped
+    frames = pcreg.synthetic("syn1a", n, 0, width=width, height=height)
     src = tmp_path / "frames"
     src.mkdir()
     for i, f in enumerate(frames):
         cv2.imwrite(str(src / f"f{i:03d}.png"), f.image[:, :, ::-1])
     cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
+    return frames, src
+
+
+@pytest.mark.parametrize("how", ["group", "term", "hangup"])
+def test_run_stops_between_frames_and_resumes(tmp_path, how):
+    frames, src = _frames(tmp_path, 60, 320, 240)  # about 1.5 s left when it is stopped
     out = tmp_path / "out"
     args = ["run", src, "--labels", tmp_path / "key.png", "--out", out]
     p = start(args)
@@ -70,14 +77,7 @@ def test_a_run_started_under_nohup_goes_on_when_its_terminal_closes(tmp_path):
     """``nohup`` starts a command with SIGHUP ignored so that it outlives its terminal: pcreg keeps it so."""
     import signal
 
-    import pcreg
-
-    frames = pcreg.synthetic("syn1a", 12, 0, width=160, height=120)
-    src = tmp_path / "frames"
-    src.mkdir()
-    for i, f in enumerate(frames):
-        cv2.imwrite(str(src / f"f{i:03d}.png"), f.image[:, :, ::-1])
-    cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
+    frames, src = _frames(tmp_path, 12, 160, 120)
     out = tmp_path / "out"
     p = start(["run", src, "--labels", tmp_path / "key.png", "--out", out],
               preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_IGN))

@@ -68,3 +68,14 @@ def test_an_exif_orientation_and_damaged_data_are_warned_of(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         pcreg.load_image(good)
+
+
+def test_a_warning_of_a_file_read_inside_pcreg_points_at_the_callers_line(tmp_path):
+    """``pcreg.crosscheck(path, path)`` reads its images inside pcreg: the warning named pcreg's own line."""
+    img = pcreg.synthetic("syn2a", n_frames=1)[0].image[:, :, ::-1]
+    turned, plain = tmp_path / "turned.jpg", tmp_path / "plain.jpg"
+    turned.write_bytes(_jpeg_turned(img))
+    cv2.imwrite(str(plain), img)
+    with pytest.warns(ImageWarning, match="EXIF orientation 6") as said:
+        pcreg.crosscheck(plain, turned)
+    assert [w.filename for w in said if issubclass(w.category, ImageWarning)] == [__file__]

@@ -254,20 +254,28 @@ def test_a_tiff_whose_second_image_has_no_size_is_bad_input_not_a_bug(tmp_path, 
     assert main(["register", str(tmp_path / "photo.png"), str(tmp_path / "damaged.tif")]) == 0, capsys.readouterr().err
 
 
-def test_a_jpeg_missing_only_its_end_marker_reads_whole_and_one_cut_short_is_refused_saying_so(tmp_path):
-    """A JPEG whose last two bytes (FF D9, the end-of-image marker) are missing holds all its data, and viewers show
-    it: OpenCV refused it ("cannot decode image (corrupt or truncated)"). It reads as the whole file does, baseline
-    or progressive; one cut before its data ends is refused, saying it was cut short."""
+def test_a_jpeg_without_its_end_marker_reads_as_viewers_show_it(tmp_path):
+    """A JPEG whose end-of-image marker (FF D9) is missing, as a copy stopped short leaves it, which viewers show:
+    OpenCV refused it ("cannot decode image (corrupt or truncated)"). Missing only its two last bytes, it reads as the
+    whole file does, baseline or progressive, with nothing to warn of; cut in its data, it reads as the part its data
+    holds and is warned of as damaged data, as a JPEG decoded around damage is. Complete, with bytes after its end
+    marker, or cut before its first scan, it reads or is refused as before."""
     rgb = shapes_image()
     for progressive in (0, 1):
         data = cv2.imencode(".jpg", rgb[:, :, ::-1], [cv2.IMWRITE_JPEG_PROGRESSIVE, progressive])[1].tobytes()
         (tmp_path / "whole.jpg").write_bytes(data)
         (tmp_path / "no_end.jpg").write_bytes(data[:-2])
         (tmp_path / "cut.jpg").write_bytes(data[: len(data) * 2 // 3])
+        (tmp_path / "trailed.jpg").write_bytes(data + bytes(64))
+        whole = pcreg.load_image(tmp_path / "whole.jpg")
         with warnings.catch_warnings():
             warnings.simplefilter("error")  # nothing to warn of: every byte of the image is there
-            np.testing.assert_array_equal(pcreg.load_image(tmp_path / "no_end.jpg"), pcreg.load_image(tmp_path / "whole.jpg"))
-        with pytest.raises(pcreg.InputError, match=r"cut\.jpg: cannot decode image \(a JPEG cut short: its data ends "
-                                                   r"before the image does\)"):
-            pcreg.load_image(tmp_path / "cut.jpg")
+            np.testing.assert_array_equal(pcreg.load_image(tmp_path / "no_end.jpg"), whole)
+            np.testing.assert_array_equal(pcreg.load_image(tmp_path / "trailed.jpg"), whole)
+        with pytest.warns(pcreg.errors.ImageWarning, match=r"cut\.jpg: its decoder reports damaged data \(Corrupt JPEG data: "
+                                                          r"premature end of data segment\)"):
+            assert pcreg.load_image(tmp_path / "cut.jpg").shape == whole.shape
+    (tmp_path / "header.jpg").write_bytes(data[: data.find(b"\xff\xda")])
+    with pytest.raises(pcreg.InputError, match=r"header\.jpg: cannot decode image"):
+        pcreg.load_image(tmp_path / "header.jpg")
     assert main(["register", str(tmp_path / "whole.jpg"), str(tmp_path / "no_end.jpg")]) == 0

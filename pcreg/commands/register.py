@@ -162,9 +162,12 @@ def _naming_its_file(exc: Exception, images) -> Exception:
         if said.startswith(role):
             dark = low_bits_note(stored) if said.startswith(f"{role} has no usable edges") else ""
             return type(exc)(f"{path}: {role} has no usable edges: {dark}" if dark else f"{path}: {said}")
-    dark_notes = _dark_notes(images)
-    if isinstance(exc, RegistrationError) and dark_notes:
-        return type(exc)(f"registration refused: {'; '.join(dark_notes)}; {said.removeprefix('registration refused: ')}")
+    darks = [str(path) for path, stored in images if low_bits_note(stored)]
+    if isinstance(exc, RegistrationError) and darks:  # briefly, so that the refusal's own advice stays on its line
+        which = " and ".join(darks)
+        return type(exc)(f"registration refused: {which} read{'s' if len(darks) == 1 else ''} nearly black (16-bit "
+                         "values in the lowest bits: stretch them over the 16 bits or store the image as 8-bit); "
+                         f"{said.removeprefix('registration refused: ')}")
     return exc
 
 

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from .._signals import _shielded, check_interrupted
-from ..errors import ImageWarning, InputError
+from ..errors import ImageWarning, InputError, outside_pcreg
 from ..frame import FLOAT_FILE_HINT, MIN_SIDE, as_rgb_uint8
 from ..validation import check_bool, check_choice, check_count, check_counts, check_float, check_int, check_path
 
@@ -67,13 +67,13 @@ def load_image(path: str | os.PathLike, *, max_pixels: int | None = None) -> np.
         hidden = float(np.mean(alpha == 0))
         warnings.warn(f"{path}: {100 * hidden:.3g}% of its pixels are transparent (alpha 0), kept here as pixels that a "
                       "registration would match; pcreg.load_image_and_mask(path) gives the mask that leaves them out "
-                      "(register(..., reference_mask=, moving_mask=))", ImageWarning, stacklevel=2)
+                      "(register(..., reference_mask=, moving_mask=))", ImageWarning, stacklevel=outside_pcreg())
     _warn_of_file(path, damage)
     return rgb
 
 
 def _warn_of_file(path, damage: str) -> None:
-    """An :class:`~pcreg.errors.ImageWarning`, to the loader's caller, of damaged data its decoder guessed around
+    """An :class:`~pcreg.errors.ImageWarning`, to the first caller outside pcreg, of damaged data its decoder guessed around
     (``damage``, what it said) and of an EXIF orientation."""
     import warnings
 
@@ -82,7 +82,7 @@ def _warn_of_file(path, damage: str) -> None:
     for said in (f"{path}: its decoder reports damaged data ({damage}): part of the image is the decoder's guess"
                  if damage else None, orientation_note(path, "reads")):
         if said is not None:
-            warnings.warn(said, ImageWarning, stacklevel=3)
+            warnings.warn(said, ImageWarning, stacklevel=outside_pcreg())
 
 
 def load_image_and_alpha(path: str | os.PathLike, *, max_pixels: int | None = None

@@ -32,11 +32,12 @@ def repeat_shift(image: np.ndarray) -> tuple[float, float, float] | None:
     """The shortest shift ``(dx, dy)`` in px of ``image`` ((H, W) or (H, W, C), any numeric type) under which its
     central half matches itself with a correlation of at least :data:`REPEATS`, beyond the lobe around no shift,
     and that correlation: ``(dx, dy, correlation)``; None where there is none (or the image is under 16 px)."""
+    factor = max(1.0, max(image.shape[:2]) / SIDE)
+    if factor > 1:  # reduced as stored, before the float copy: its cost is the reduced image's (a 4000x3000 pair: 1.3 s)
+        size = (max(1, round(image.shape[1] / factor)), max(1, round(image.shape[0] / factor)))
+        image = cv2.resize(image if image.ndim == 2 or image.shape[2] <= 4 else image.astype(np.float32), size,
+                           interpolation=cv2.INTER_AREA)
     grey = image.astype(np.float32) if image.ndim == 2 else image.astype(np.float32).mean(axis=2)
-    factor = max(1.0, max(grey.shape) / SIDE)
-    if factor > 1:
-        size = (max(1, round(grey.shape[1] / factor)), max(1, round(grey.shape[0] / factor)))
-        grey = cv2.resize(grey, size, interpolation=cv2.INTER_AREA)
     h, w = grey.shape
     if min(h, w) < 16:
         return None

@@ -527,10 +527,8 @@ def _decoded(data: bytes | bytearray, name: str, *, flags: int | None, limit: in
     if data[:4] in (b"II*\x00", b"MM\x00*"):  # OpenCV turns a TIFF by its Orientation tag whatever the flags
         data = _tiff_as_stored(data)
     img, said = imdecode_quietly(data, cv2.IMREAD_UNCHANGED if flags is None else flags)
-    if img is None and _jpeg_without_its_end(data):
+    if img is None and _jpeg_without_its_end(data):  # refused by OpenCV, shown by viewers
         img, said = imdecode_quietly(bytes(data) + b"\xff\xd9", cv2.IMREAD_UNCHANGED if flags is None else flags)
-        if img is None:
-            raise InputError(f"{name}: cannot decode image (a JPEG cut short: its data ends before the image does)")
     if isinstance(img, Exception):
         raise InputError(f"{name}: cannot decode image ({_cv2_message(img)})") from None
     if img is None or img.size == 0:
@@ -545,10 +543,9 @@ def _decoded(data: bytes | bytearray, name: str, *, flags: int | None, limit: in
 
 
 def _jpeg_without_its_end(data: bytes | bytearray) -> bool:
-    """Whether ``data`` is a JPEG whose end-of-image marker (FF D9) is missing after its last scan, which OpenCV refuses
-    and viewers show: decoded with the marker put back, it is the image (all its data there), or the part of it its
-    data holds, the rest the decoder's guess, said as damage (``premature end of data segment``) as for any JPEG
-    decoded around damaged data. Scan data cannot hold FF D9 (an FF there is followed by 00 or a restart marker)."""
+    """Whether ``data`` is a JPEG with no end-of-image marker (FF D9) after its last scan (scan data cannot hold one),
+    which OpenCV refuses and viewers show: with the marker put back it decodes whole, or as the part its data holds,
+    the rest the decoder's guess, said as damage (``premature end of data segment``)."""
     if data[:2] != b"\xff\xd8":
         return False
     scan = data.rfind(b"\xff\xda")

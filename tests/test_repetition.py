@@ -83,3 +83,27 @@ def test_the_python_api_marks_a_result_on_images_that_repeat():
     assert plain.evidence.repeats is None and plain.trusted and "repeats" not in plain.to_dict()
     unchecked = pcreg.register(tiles, np.roll(tiles, (30, 29), axis=(0, 1)), config=pcreg.RegisterConfig.of(model_check=False))
     assert unchecked.evidence.repeats is None
+
+
+def test_a_refusal_of_images_that_repeat_says_so_first(tmp_path, capsys):
+    """A pair of tiles turned a quarter was refused as a mirror image, or as not pinning the motion down, without a
+    word of the pattern; the refusal now names the image that repeats first (the command by its file), and a
+    refusal of images that do not repeat is as it was."""
+    tiles = np.tile(pcreg.synthetic("syn2a", n_frames=1)[0].image[100:124, 200:224], (16, 20, 1))
+    turn = cv2.getRotationMatrix2D((239.5, 191.5), 90, 1.0) + [[0, 0, 20], [0, 0, -13]]
+    moved = cv2.warpAffine(tiles, turn, (480, 384))
+    with pytest.raises(pcreg.errors.RegistrationError) as refused:
+        pcreg.register(tiles, moved)
+    said = str(refused.value)
+    assert said.startswith("registration refused: the reference image repeats itself (shifted by about ("), said
+    assert said.count("registration refused") == 1 and len(said) < 1000  # the command's line keeps it whole
+    ref, mov = tmp_path / "tiles.png", tmp_path / "turned.png"
+    cv2.imwrite(str(ref), tiles[:, :, ::-1])  # the same pixels as the arrays (OpenCV writes BGR)
+    cv2.imwrite(str(mov), moved[:, :, ::-1])
+    assert main(["register", str(ref), str(mov)]) == 3
+    err = capsys.readouterr().err
+    assert err.startswith(f"pcreg: registration refused: {ref} repeats itself (shifted by about ("), err
+    frame = pcreg.synthetic("syn2a", n_frames=1)[0].image
+    with pytest.raises(pcreg.errors.RegistrationError) as plain:
+        pcreg.register(frame, np.random.default_rng(2).integers(0, 256, frame.shape, dtype=np.uint8))
+    assert "repeats itself" not in str(plain.value)

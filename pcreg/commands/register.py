@@ -153,12 +153,14 @@ def _naming_its_file(exc: Exception, images) -> Exception:
     """``exc`` of the same type with the file named, when it names "the reference image" or "the moving image"
     (``images``: each one's path and array as its file stores it); an image refused for having no edges says
     when its 16-bit values use only the lowest bits (:func:`pcreg.frame.low_bits_note`), and so does any other
-    refused registration, first: nearly black, the images' edges are too faint to line up."""
+    refused registration, first: nearly black, the images' edges are too faint to line up. A refusal's image that
+    repeats itself is named by its file."""
     from ..errors import RegistrationError
     from ..frame import low_bits_note
 
     said = str(exc)
     for role, (path, stored) in zip(("the reference image", "the moving image"), images):
+        said = said.replace(f"refused: {role} repeats itself", f"refused: {path} repeats itself")
         if said.startswith(role):
             dark = low_bits_note(stored) if said.startswith(f"{role} has no usable edges") else ""
             return type(exc)(f"{path}: {role} has no usable edges: {dark}" if dark else f"{path}: {said}")
@@ -168,7 +170,7 @@ def _naming_its_file(exc: Exception, images) -> Exception:
         return type(exc)(f"registration refused: {which} read{'s' if len(darks) == 1 else ''} nearly black (16-bit "
                          "values in the lowest bits: stretch them over the 16 bits or store the image as 8-bit); "
                          f"{said.removeprefix('registration refused: ')}")
-    return exc
+    return exc if said == str(exc) else type(exc)(said)
 
 
 def _dark_notes(images) -> list[str]:

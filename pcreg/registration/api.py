@@ -28,7 +28,7 @@ from .inputs import check_cloud
 from .plausibility import CHANCE_FACTOR, MIRROR_FACTOR, MIRROR_OVERLAP, NARROWER, RICHER_MODEL, Plausibility, model_fit
 from .pyramid import CloudPyramid
 from .refine import CoarseToFine
-from .repetition import pair_repeats
+from .repetition import pair_repeats, said_with_repeats
 from .result import IcpIteration, ImageEvidence, RegistrationResult
 from .search import CONVINCING_NCC, START_LEVEL, Candidate, GlobalSearch, Hypothesis
 from .steps import IcpSettings, icp_step
@@ -141,9 +141,10 @@ def _register(reference_image, moving_image, *, config: RegisterConfig, model, b
         evidence, refusal = test.check(best, mirror=mirror, shape=mov_img.shape, moving=moving), None
         if unsettled is not None:
             raise unsettled
-    except RegistrationError as exc:  # judged: the pose as the test off returns it (what that refuses is raised)
+    except RegistrationError as refused:  # judged: the pose as the test off returns it (what that refuses is raised)
+        exc = said_with_repeats(refused, ref_img, mov_img) if config.plausibility.model_check else refused
         if not judged:
-            raise
+            raise exc from None
         evidence, refusal = test.off().check(best, shape=mov_img.shape, moving=moving), exc
     checks = _checks(reference, moving, config, best, test, search, mov_img.shape) if refusal is None else (None, None)
     checks = (*checks, settling, pair_repeats(ref_img, mov_img) if refusal is None and config.plausibility.model_check else None)

@@ -15,6 +15,8 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
+from ..errors import RegistrationError
+
 if TYPE_CHECKING:
     from .result import Repetition
 
@@ -70,3 +72,16 @@ def pair_repeats(reference: np.ndarray, moving: np.ndarray) -> Repetition | None
             dx, dy, correlation = found
             return Repetition(name, (dx, dy), correlation)
     return None
+
+
+def said_with_repeats(refusal: RegistrationError, reference: np.ndarray, moving: np.ndarray) -> RegistrationError:
+    """``refusal`` of the pair with a clause first naming the image that repeats itself (:func:`pair_repeats`), or
+    ``refusal`` itself: a pattern that repeats lines up under motions a period apart, and its mirror often as well,
+    so what the refusal reads (too few edge points lined up, a mirror image) may be the pattern alone."""
+    found = pair_repeats(reference, moving)
+    if found is None:
+        return refusal
+    dx, dy = found.shift_px
+    said = str(refusal).removeprefix("registration refused: ")
+    return type(refusal)(f"registration refused: the {found.image} image repeats itself (shifted by about ({dx:.0f}, "
+                         f"{dy:.0f}) px it matches itself), so several motions line it up; {said}")

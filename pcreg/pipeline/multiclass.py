@@ -33,7 +33,7 @@ from ..errors import InputError
 from ._class_kernels import (best_agreement, carried_best, class_window, fuse_and_mark, fuse_classes,
                              iou_sums, log_margins, logistic_confidence, penalised, purities, remap_classes, remap_labels, top_two)
 from ._class_regions import region_means
-from .readout import AGREEMENT_SIDE, PURITY_SIDES, channelwise, half, odd
+from .readout import AGREEMENT_SIDE, MAX_CHANNELS, PURITY_SIDES, Scratch, channelwise, half, odd
 
 __all__ = ["CLASS_ANCHOR", "CLASS_WEIGHT_SHARE", "CLASS_CONFIDENCE_COEFFICIENTS", "CLASS_MIN_CONFIDENCE", "CLASS_PRIOR_SIGMA",
            "CLASS_WINDOW", "CLASS_PENALTY", "ClassRead", "windowed", "weight_sum",
@@ -183,13 +183,17 @@ def fused_and_marked(scores: np.ndarray, weighted: list, weight_sum: np.ndarray,
     return fused, prior, (carried, agree)
 
 
-def smoothed_scores(fused: np.ndarray, sigma_px: float) -> np.ndarray:
-    """(H, W, K) float32: class scores blurred, each class by a Gaussian of ``sigma_px`` px (itself at 0)."""
+def smoothed_scores(fused: np.ndarray, sigma_px: float, *, scratch: Scratch | None = None) -> np.ndarray:
+    """(H, W, K) float32: class scores blurred, each class by a Gaussian of ``sigma_px`` px (itself at 0).
+    ``scratch``: where the blurred scores are kept between calls (read them before the next call)."""
     import cv2
 
     S = np.ascontiguousarray(fused, dtype=np.float32)
     if sigma_px <= 0:
         return S
+    if scratch is not None and S.shape[2] <= MAX_CHANNELS:  # into the kept array (OpenCV's dst: the same blur)
+        out = scratch.array("smoothed", S.shape, np.float32)
+        return cv2.GaussianBlur(S, (0, 0), sigma_px, dst=out).reshape(S.shape)
     return channelwise(lambda a: cv2.GaussianBlur(a, (0, 0), sigma_px), S)
 
 
@@ -211,35 +215,39 @@ def weight_sum(maps) -> np.ndarray:
 
 
 def windowed(fused: np.ndarray, prior_term: np.ndarray, weight_sum: np.ndarray, log_pi: np.ndarray, *,
-             carried: np.ndarray | None = None) -> np.ndarray:
+             carried: np.ndarray | None = None, scratch: Scratch | None = None) -> np.ndarray:
     """(H, W, K) float32: ``fused`` with every class that the carried labels do not show within
     :data:`CLASS_WINDOW` of a pixel lowered by :data:`CLASS_PENALTY`. The carried label is the best class of
     the priors' evidence per unit of trust plus the class prior (``prior_term / weight_sum + log_pi``: the
     carried priors' own log-probabilities); where ``weight_sum`` is below :data:`UNTRUSTED` every class is
     allowed. ``carried``: the carried label's class index (H, W), when the fusion made it
     (:func:`fused_and_marked`). The classes within the window are found as bits
-    (:func:`~pcreg.pipeline._class_kernels.class_window`), in two running passes in place of one dilation a class."""
+    (:func:`~pcreg.pipeline._class_kernels.class_window`), in two running passes in place of one dilation a class.
+    ``scratch``: a :class:`~pcreg.pipeline.readout.Scratch` whose arrays the bits and the result are
+    written into (read the result before the next call with it)."""
     w = np.asarray(weight_sum, np.float32)
     if carried is None:
         carried = carried_best(prior_term, w, log_pi)
-    allowed = class_window(carried, fused.shape[2], odd(CLASS_WINDOW, fused.shape[1]))
-    return penalised(fused, allowed, w, UNTRUSTED, CLASS_PENALTY)
+    allowed = class_window(carried, fused.shape[2], odd(CLASS_WINDOW, fused.shape[1]), scratch=scratch)
+    return penalised(fused, allowed, w, UNTRUSTED, CLASS_PENALTY, scratch=scratch)
 
 
 def read_class_labels(fused: np.ndarray, scores: np.ndarray, prior_term: np.ndarray, classes: np.ndarray, *,
-                      smooth_px: float, coefficients: tuple[float, ...], size=None, window=None, marks=None
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                      smooth_px: float, coefficients: tuple[float, ...], size=None, window=None, marks=None,
+                      scratch: Scratch | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(labels, confidence, runner_up)`` of fused class scores (H, W, K): the class ids (``classes`` in the
     classifier's order) of the largest score blurred by a Gaussian of ``smooth_px`` px, the probability
     that each is right (:func:`class_confidence`), and the second likeliest class's id. ``size``: the
     stream's :class:`~pcreg.pipeline.working.WorkingSize` when the maps are at it: the blurred scores and
     the confidence are brought to the frames' size, and the labels read there. ``window``: ``(weight_sum,
     log_pi)``, the carried priors' summed trust weight (H, W) and the log class priors: the scores are
-    :func:`windowed` first. ``marks``: ``(carried, agree)`` when the fusion made them (:func:`fused_and_marked`)."""
+    :func:`windowed` first. ``marks``: ``(carried, agree)`` when the fusion made them (:func:`fused_and_marked`).
+    ``scratch``: a stream's :class:`~pcreg.pipeline.readout.Scratch`, where the windowed and blurred
+    scores are written (kept from one step to the next, not made anew; none of them is returned)."""
     carried, agree = (None, None) if marks is None else marks
     if window is not None:
-        fused = windowed(fused, prior_term, *window, carried=carried)
-    S = smoothed_scores(fused, smooth_px)
+        fused = windowed(fused, prior_term, *window, carried=carried, scratch=scratch)
+    S = smoothed_scores(fused, smooth_px, scratch=scratch)
     best, second, margin = top_two(S)
     conf = class_confidence(margin, best, scores, prior_term, coefficients, agree=agree)
     if size is not None and size.scaled:

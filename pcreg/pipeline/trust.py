@@ -37,7 +37,7 @@ import numpy as np
 
 from ..classification.fusion import CONFIDENCE_SPAN
 from ..errors import InputError
-from .readout import AGREEMENT_SIDE, BASE_WIDTH, PURITY_SIDES, half  # noqa: F401 - BASE_WIDTH: where the rule's sizes are stated
+from .readout import AGREEMENT_SIDE, BASE_WIDTH, PURITY_SIDES, Scratch, half  # noqa: F401 - BASE_WIDTH: where the rule's sizes are stated
 from .readout import odd as _odd
 from .readout import scaled as _scaled
 from .working import WorkingSize
@@ -181,7 +181,10 @@ def residual_weight(residual: np.ndarray, rule: "TrustRule") -> np.ndarray:
     """(H, W) float32 in [0, 1]: ``exp(-r / rule.residual)`` of a :func:`carried_residual`, 0 where the
     residual's neighbourhood lies wholly outside the key frame (:data:`OUTSIDE`)."""
     r = np.asarray(residual, np.float32)
-    return np.where(r < OUTSIDE, np.exp(r * np.float32(-1.0 / rule.residual)), np.float32(0.0))
+    out = np.multiply(r, np.float32(-1.0 / rule.residual), out=np.empty(r.shape, np.float32))
+    np.exp(out, out=out)  # in place: one map made, where numpy's where made three
+    np.copyto(out, np.float32(0.0), where=~(r < OUTSIDE))  # NaN compares False: 0
+    return out
 
 
 def carried_log_odds(log_odds: np.ndarray, field: np.ndarray) -> np.ndarray:
@@ -264,11 +267,12 @@ def trust_maps(rule: TrustRule, *, weight: float, primary_prior: np.ndarray | No
     if primary_prior is not None and primary_residual is not None:
         lo, hi = CONFIDENCE_SPAN
         c = UNKNOWN_CONFIDENCE if confidence is None else np.clip(np.nan_to_num(confidence, nan=0.0), 0.0, 1.0)
-        wd = (np.float32(weight * rule.dense) * (np.float32(lo) + np.float32(hi - lo) * c)
-              * residual_weight(primary_residual, rule))
-        wd = wd.astype(np.float32, copy=False)
+        scale = np.float32(weight * rule.dense) * (np.float32(lo) + np.float32(hi - lo) * c)
+        wd = residual_weight(primary_residual, rule)  # its own map, scaled in place (the same products)
+        np.multiply(wd, scale, out=wd, casting="unsafe")
     if second_prior is not None and second_residual is not None:
-        wf = np.float32(weight * rule.flow) * residual_weight(second_residual, rule)
+        wf = residual_weight(second_residual, rule)
+        np.multiply(wf, np.float32(weight * rule.flow), out=wf)
     return TrustMaps(wd, primary_prior, wf, second_prior, primary_residual, second_residual,
                      None if confidence is None else np.asarray(confidence, np.float32))
 
@@ -419,6 +423,7 @@ class TrustedKey:
         self.blurred, self.log_odds = blurred(image), log_odds
         self.classes = classes
         self._by_label = None
+        self._scratch: Scratch | None = None  # the many-class read-out's arrays, kept from one step to the next
         if classes is not None and labels is not None:
             from .multiclass import label_evidence
 
@@ -458,6 +463,8 @@ class TrustedKey:
         from .multiclass import fused_and_marked, read_class_labels, weight_sum
 
         read = self.classes
+        if self._scratch is None:
+            self._scratch = Scratch()
         assert read is not None  # fuse sends K classes here only
         second_prior, second_residual = (None, None) if flow is None else flow
         maps = trust_maps(self.rule, weight=self.weight, primary_prior=dense_prior, primary_residual=dense_residual,
@@ -469,7 +476,7 @@ class TrustedKey:
         t2 = time.perf_counter()
         labels, confidence, second = read_class_labels(
             fused, scores, prior, read.classes, smooth_px=_scaled(self.rule.smooth, fused.shape[1]),
-            coefficients=read.coefficients, size=self.size, window=(w, read.log_pi), marks=marks)
+            coefficients=read.coefficients, size=self.size, window=(w, read.log_pi), marks=marks, scratch=self._scratch)
         times.update({"fuse.warp": t1 - t0, "fuse.trust": t2 - t1, "fuse.confidence": time.perf_counter() - t2})
         return Trusted(labels, confidence, maps, fused, prior, second)
 

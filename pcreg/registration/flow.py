@@ -59,7 +59,10 @@ def flow_field(flow: np.ndarray, grid: tuple[np.ndarray, np.ndarray] | None = No
     """(H, W, 2) float32 field of a flow: each moving pixel's reference coordinates, its own
     (:func:`pixel_grid`, or ``grid`` made beforehand) plus the flow there."""
     xs, ys = pixel_grid(flow.shape) if grid is None else grid
-    return np.dstack([xs + flow[:, :, 0], ys + flow[:, :, 1]]).astype(np.float32)
+    out = np.empty(flow.shape[:2] + (2,), np.float32)  # each sum written in place (not stacked, then copied)
+    np.add(xs, flow[:, :, 0], out=out[:, :, 0], casting="unsafe")
+    np.add(ys, flow[:, :, 1], out=out[:, :, 1], casting="unsafe")
+    return out
 
 
 def dis_field(reference_image: np.ndarray, moving_image: np.ndarray, *, preset: str = "medium"

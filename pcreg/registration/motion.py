@@ -95,8 +95,9 @@ class Motion:
 
             return Motion(field=apply(self.matrix, f_cb.reshape(-1, 2)).reshape(f_cb.shape).astype(np.float32))
         assert self.field is not None
-        return Motion(field=cv2.remap(self.field, f_cb[:, :, 0].astype(np.float32), f_cb[:, :, 1].astype(np.float32),
-                                      cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(-1e6, -1e6)))
+        # the (H, W, 2) map as it is (OpenCV rounds its two channels as it does two maps: the same field)
+        return Motion(field=cv2.remap(self.field, np.ascontiguousarray(f_cb, np.float32), None, cv2.INTER_LINEAR,
+                                      borderMode=cv2.BORDER_CONSTANT, borderValue=(-1e6, -1e6)))
 
     def __repr__(self) -> str:
         if self.matrix is not None:

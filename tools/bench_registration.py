@@ -55,10 +55,12 @@ LABELS = {
     "pcreg_reference": "pcreg.register (reference ICP)",
     "pcreg_open3d": "pcreg.register (Open3D ICP)",
     "pcreg_reference_p2l": "pcreg.register (reference ICP, point-to-line finish)",
+    "pcreg_reference_unchecked": "pcreg.register (reference ICP, model_check=False)",
     "orb": "ORB+RANSAC (2000 features)",
     "ecc": "OpenCV ECC multi-scale",
 }
 COLORS = {"pcreg_reference": "tab:blue", "pcreg_open3d": "tab:orange", "pcreg_reference_p2l": "tab:purple",
+          "pcreg_reference_unchecked": "tab:cyan",
           "orb": "tab:red", "ecc": "tab:green"}
 SUCCESS_PX = 1.0
 TARGETS = {"median_px": 0.1, "p95_px": 0.5, "success": 0.99, "icp_ratio_vs_open3d": 1.0}
@@ -166,6 +168,9 @@ def _run_method(method: str, reference: np.ndarray, moving: np.ndarray) -> tuple
         r = pcreg.register(reference, moving, backend=method.split("_", 1)[1])
         return r.matrix, {"inlier_ratio": r.inlier_ratio, "chance_ratio": r.chance_ratio, "generator": r.generator,
                           "inner_seconds": r.seconds}
+    if method == "pcreg_reference_unchecked":  # without the checks beyond the plausibility test (as the streams run)
+        r = pcreg.register(reference, moving, config=pcreg.RegisterConfig.of(backend="reference", model_check=False))
+        return r.matrix, {"inlier_ratio": r.inlier_ratio, "generator": r.generator, "inner_seconds": r.seconds}
     if method == "pcreg_reference_p2l":
         r = pcreg.register(reference, moving, config=pcreg.RegisterConfig.of(backend="reference", refine="point_to_line"))
         return r.matrix, {"inlier_ratio": r.inlier_ratio, "generator": r.generator, "inner_seconds": r.seconds}

@@ -133,7 +133,11 @@ def label_clip(images: Callable[[int], np.ndarray], n: int, keys: Mapping[int, n
             return Propagator(clf, backend=backend, learning=learning, scale=scale, model=model)
 
         fwd, prop = ({}, None) if a is None else _pass(make, images(a), keys[a], images, s.frames)
-        bwd, prop = (fwd, prop) if b is None else _pass(make, images(b), keys[b], images, s.frames[::-1])
+        if b is not None:  # the forward stream let go first: one stream's arrays alive at a time
+            prop = None
+            bwd, prop = _pass(make, images(b), keys[b], images, s.frames[::-1])
+        else:
+            bwd = fwd
         for t in s.frames:
             if len(s.keys) == 1:
                 _, _, labels, conf, _, bars = bwd[t]

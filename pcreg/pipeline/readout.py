@@ -54,8 +54,8 @@ def half(image: np.ndarray) -> np.ndarray:
 
 class Scratch:
     """Arrays that a step's read-out writes and reads again within the step, kept from one step to the next
-    (a stream's frames are of one size): made anew each step, 10-30 MB of them at 640x480 with eleven classes,
-    the allocator handed them back to the system at the step's end and every page faulted in again in the
+    (a stream's frames are of one size; none is returned). Made anew in each step, 10-30 MB of them at 640x480
+    with eleven classes went back to the system at the step's end and had every page faulted in again in the
     next (about 1,400 page faults a step, 8 ms of system time). Not for two threads at once: a stream's own."""
 
     def __init__(self) -> None:

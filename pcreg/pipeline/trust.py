@@ -182,7 +182,7 @@ def residual_weight(residual: np.ndarray, rule: "TrustRule") -> np.ndarray:
     residual's neighbourhood lies wholly outside the key frame (:data:`OUTSIDE`)."""
     r = np.asarray(residual, np.float32)
     out = np.multiply(r, np.float32(-1.0 / rule.residual), out=np.empty(r.shape, np.float32))
-    np.exp(out, out=out)  # in place: one map made, where numpy's where made three
+    np.exp(out, out=out)  # in place: one float map, where np.where's made three
     np.copyto(out, np.float32(0.0), where=~(r < OUTSIDE))  # NaN compares False: 0
     return out
 

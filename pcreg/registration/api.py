@@ -144,7 +144,7 @@ def _register(reference_image, moving_image, *, config: RegisterConfig, model, b
     except RegistrationError as refused:  # judged: the pose as the test off returns it (what that refuses is raised)
         exc = said_with_repeats(refused, ref_img, mov_img) if config.plausibility.model_check else refused
         if not judged:
-            raise exc from None
+            raise exc.with_traceback(refused.__traceback__) from None  # where the test refused, kept
         evidence, refusal = test.off().check(best, shape=mov_img.shape, moving=moving), exc
     checks = _checks(reference, moving, config, best, test, search, mov_img.shape) if refusal is None else (None, None)
     checks = (*checks, settling, pair_repeats(ref_img, mov_img) if refusal is None and config.plausibility.model_check else None)

@@ -84,4 +84,5 @@ def said_with_repeats(refusal: RegistrationError, reference: np.ndarray, moving:
     dx, dy = found.shift_px
     said = str(refusal).removeprefix("registration refused: ")
     return type(refusal)(f"registration refused: the {found.image} image repeats itself (shifted by about ({dx:.0f}, "
-                         f"{dy:.0f}) px it matches itself), so several motions line it up; {said}")
+                         f"{dy:.0f}) px it matches itself), and a pattern that repeats may line up under several motions, or "
+                         f"mirrored; {said}")

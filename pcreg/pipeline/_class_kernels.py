@@ -275,40 +275,43 @@ def _fuse_classes_py(d, w1, l1, w2, l2, ws, log_pi, least, fused, prior, carried
                     agree[i, j] = 1.0 if bd == bp else 0.0
 
 
+def _taps_py(fx, fy, h, w):
+    """Where OpenCV's bilinear ``remap`` reads the position (fx, fy) of an (h, w) map, to the bit: the top-left
+    neighbour (sx, sy) of the position rounded to 1/32 px (half to even), the four weights (products of ``1 - t``
+    and ``t``, t = k/32) and which of the four neighbours lie inside the map (bits 1, 2, 4, 8 in OpenCV's order);
+    a position far outside, or NaN, has none inside and weights 0."""
+    one, zero, scale, inv = np.float32(1.0), np.float32(0.0), np.float32(32.0), np.float32(1.0 / 32.0)
+    if not (fx > -2.0 and fx < w + 1.0 and fy > -2.0 and fy < h + 1.0):
+        return 0, 0, zero, zero, zero, zero, 0
+    X, Y = int(np.rint(fx * scale)), int(np.rint(fy * scale))
+    sx, sy = X >> 5, Y >> 5
+    ax, ay = np.float32(X & 31) * inv, np.float32(Y & 31) * inv
+    inside = 15
+    if not (0 <= sy and sy + 1 < h and 0 <= sx and sx + 1 < w):  # at the map's edge
+        in0, in1, inl, inr = 0 <= sy < h, 0 <= sy + 1 < h, 0 <= sx < w, 0 <= sx + 1 < w
+        inside = (in0 and inl) * 1 + (in0 and inr) * 2 + (in1 and inl) * 4 + (in1 and inr) * 8
+    return sx, sy, (one - ay) * (one - ax), (one - ay) * ax, ay * (one - ax), ay * ax, inside
+
+
 def _remap_classes_py(src, fld, out, first, stride):
     """OpenCV's bilinear ``remap`` of a float32 map of K channels (K not 1, 3 or 4) with a float32 field and
-    a constant border of 0, to the bit: each position rounded to 1/32 px (half to even), the four weights
-    products of ``1 - t`` and ``t`` (t = k/32), and the four neighbours summed in OpenCV's order, a
+    a constant border of 0, to the bit (:func:`_taps_py`): the four neighbours summed in OpenCV's order, a
     neighbour outside the map counted as 0."""
-    k = src.shape[2]
-    h, w = src.shape[0], src.shape[1]
-    rows, cols = fld.shape[0], fld.shape[1]
-    one, zero, scale, inv = np.float32(1.0), np.float32(0.0), np.float32(32.0), np.float32(1.0 / 32.0)
-    for b in range(first * BLOCK_ROWS, rows, stride * BLOCK_ROWS):
-        for i in range(b, min(b + BLOCK_ROWS, rows)):
-            for j in range(cols):
-                fx, fy = fld[i, j, 0], fld[i, j, 1]
-                if not (fx > -2.0 and fx < w + 1.0 and fy > -2.0 and fy < h + 1.0):  # far outside, or NaN
-                    for c in range(k):
-                        out[i, j, c] = zero
-                    continue
-                X, Y = int(np.rint(fx * scale)), int(np.rint(fy * scale))
-                sx, sy = X >> 5, Y >> 5
-                ax, ay = np.float32(X & 31) * inv, np.float32(Y & 31) * inv
-                w0, w1 = (one - ay) * (one - ax), (one - ay) * ax
-                w2, w3 = ay * (one - ax), ay * ax
-                in0, in1 = 0 <= sy < h, 0 <= sy + 1 < h
-                inl, inr = 0 <= sx < w, 0 <= sx + 1 < w
-                if in0 and in1 and inl and inr:
+    k, h, w, zero = src.shape[2], src.shape[0], src.shape[1], np.float32(0.0)
+    for b in range(first * BLOCK_ROWS, fld.shape[0], stride * BLOCK_ROWS):
+        for i in range(b, min(b + BLOCK_ROWS, fld.shape[0])):
+            for j in range(fld.shape[1]):
+                sx, sy, w0, w1, w2, w3, inside = _taps(fld[i, j, 0], fld[i, j, 1], h, w)
+                if inside == 15:
                     for c in range(k):
                         out[i, j, c] = (src[sy, sx, c] * w0 + src[sy, sx + 1, c] * w1 + src[sy + 1, sx, c] * w2
                                         + src[sy + 1, sx + 1, c] * w3)
                     continue
                 for c in range(k):
-                    v0 = src[sy, sx, c] if in0 and inl else zero
-                    v1 = src[sy, sx + 1, c] if in0 and inr else zero
-                    v2 = src[sy + 1, sx, c] if in1 and inl else zero
-                    v3 = src[sy + 1, sx + 1, c] if in1 and inr else zero
+                    v0 = src[sy, sx, c] if inside & 1 else zero
+                    v1 = src[sy, sx + 1, c] if inside & 2 else zero
+                    v2 = src[sy + 1, sx, c] if inside & 4 else zero
+                    v3 = src[sy + 1, sx + 1, c] if inside & 8 else zero
                     out[i, j, c] = v0 * w0 + v1 * w1 + v2 * w2 + v3 * w3
 
 
@@ -317,29 +320,15 @@ def _remap_labels_py(table, lab, fld, out, first, stride):
     whose last row is 0), the same numbers: each neighbour's values read from its label's row, a neighbour
     outside the map from the row of zeros (``0 * weight`` is the 0 the map's border adds, so no test a
     class: about 0.6 of the time)."""
-    k = table.shape[1]
-    h, w = lab.shape[0], lab.shape[1]
-    rows, cols = fld.shape[0], fld.shape[1]
-    one, zero, scale, inv = np.float32(1.0), np.float32(0.0), np.float32(32.0), np.float32(1.0 / 32.0)
-    for b in range(first * BLOCK_ROWS, rows, stride * BLOCK_ROWS):
-        for i in range(b, min(b + BLOCK_ROWS, rows)):
-            for j in range(cols):
-                fx, fy = fld[i, j, 0], fld[i, j, 1]
-                if not (fx > -2.0 and fx < w + 1.0 and fy > -2.0 and fy < h + 1.0):  # far outside, or NaN
-                    for c in range(k):
-                        out[i, j, c] = zero
-                    continue
-                X, Y = int(np.rint(fx * scale)), int(np.rint(fy * scale))
-                sx, sy = X >> 5, Y >> 5
-                ax, ay = np.float32(X & 31) * inv, np.float32(Y & 31) * inv
-                w0, w1 = (one - ay) * (one - ax), (one - ay) * ax
-                w2, w3 = ay * (one - ax), ay * ax
-                in0, in1 = 0 <= sy < h, 0 <= sy + 1 < h
-                inl, inr = 0 <= sx < w, 0 <= sx + 1 < w
-                l0 = lab[sy, sx] if in0 and inl else 256  # 256: outside, the table's row of zeros
-                l1 = lab[sy, sx + 1] if in0 and inr else 256
-                l2 = lab[sy + 1, sx] if in1 and inl else 256
-                l3 = lab[sy + 1, sx + 1] if in1 and inr else 256
+    k, h, w = table.shape[1], lab.shape[0], lab.shape[1]
+    for b in range(first * BLOCK_ROWS, fld.shape[0], stride * BLOCK_ROWS):
+        for i in range(b, min(b + BLOCK_ROWS, fld.shape[0])):
+            for j in range(fld.shape[1]):
+                sx, sy, w0, w1, w2, w3, inside = _taps(fld[i, j, 0], fld[i, j, 1], h, w)
+                l0 = lab[sy, sx] if inside & 1 else 256  # 256: outside, the table's row of zeros
+                l1 = lab[sy, sx + 1] if inside & 2 else 256
+                l2 = lab[sy + 1, sx] if inside & 4 else 256
+                l3 = lab[sy + 1, sx + 1] if inside & 8 else 256
                 for c in range(k):
                     out[i, j, c] = table[l0, c] * w0 + table[l1, c] * w1 + table[l2, c] * w2 + table[l3, c] * w3
 
@@ -408,6 +397,7 @@ _window_rows = njit(cache=True, nogil=True)(_window_rows_py)
 _window_cols = njit(cache=True, nogil=True)(_window_cols_py)
 _penalised = njit(cache=True, nogil=True)(_penalised_py)
 _fuse_classes = njit(cache=True, nogil=True)(_fuse_classes_py)
+_taps = njit(cache=True, nogil=True, inline="always")(_taps_py)
 _remap_classes = njit(cache=True, nogil=True)(_remap_classes_py)
 _remap_labels = njit(cache=True, nogil=True)(_remap_labels_py)
 

@@ -48,6 +48,7 @@ import numpy as np
 from ..classes.keys import LabelCoding, run_table
 from ..errors import InputError, OutputError
 from ..outputs import atomic_file
+from .earlier import Earlier
 from .edited import (check_key_files, check_same_frame, check_same_frames, check_same_inputs, check_same_truth,
                      frame_bytes, frame_stamp, key_contents)
 from .files import (CARRY, CONFIDENCE, HIDDEN, STEPS, SUGGEST, SUMMARY_FIELDS, append_step, check_labelled, label_digest,
@@ -119,6 +120,7 @@ class Run:
         self.truth, self.confidence = truth, confidence
         self.state: dict = {}
         self.gaps = GapMarks(self)  # where the video skips frames by its times: said, and counted in run.json
+        self.earlier = Earlier(self.out)  # an earlier run a run started over replaces, kept until it is past bad input
 
     # -- labelling ----------------------------------------------------------------------------------
 
@@ -151,7 +153,7 @@ class Run:
                                                  mapping=request.coding.mapping, truth=request.truth,
                                                  confidence=request.confidence), table, request.coding.mapping)
             run = cls(inputs.frames, request.out, identity, truth=inputs.truth, confidence=request.confidence)
-            with OutputLock(request.out):  # a second run on the same --out is refused, not raced
+            with OutputLock(request.out), run.earlier.kept(run._written):  # a second run on the same --out is refused
                 if request.record is not None and not request.force:
                     check_recording(run.out, run.identity, Path(request.record))
                 if pending is None:
@@ -322,34 +324,31 @@ class Run:
             self.commit()
 
     def _start_over(self) -> None:
-        """Forget what an earlier run in ``out`` wrote, which a run started over (``--force``) would otherwise leave
-        for the review and the export to read: its label PNGs (:func:`~pcreg.runs.files.labels_written`; a run over
-        fewer frames left the others), its carries, a key-frames run's passes, the confidence maps and the
-        suggestions. Only where ``out`` holds an earlier run (its run.json): a folder that was not a run's output
-        keeps every file in it. A path that holds one of the run's inputs (its frames, labels or truth) is refused, not removed (a label PNG that is one is kept)."""
+        """Move aside what an earlier run in ``out`` wrote (:class:`~pcreg.runs.earlier.Earlier`, put back if bad input
+        stops the new run), which a run started over (``--force``) would otherwise leave for the review and the export to
+        read: its label PNGs (:func:`~pcreg.runs.files.labels_written`; a run over fewer frames left the others), its
+        carries, a key-frames run's passes, the confidence maps, the suggestions, steps.jsonl and run.json. Only where
+        ``out`` holds an earlier run (its run.json): a folder that was not a run's output keeps every file in it. A path
+        that holds one of the run's inputs (its frames, labels or truth) is refused, not moved (a label PNG that is one is kept)."""
         from ..formats import resolved
 
         if not (self.out / STATE).is_file():
             return
-        doomed = [self.out / CARRY.format(0), self.out / CARRY.format(1), self.out / HIDDEN, self.out / CONFIDENCE,
-                  self.out / SUGGEST]
-        inputs = [Path(v) for v in run_inputs(self.identity)]
-        for path in doomed:
-            gone = resolved(path)
-            for given in inputs:
-                where = resolved(given)
-                if where == gone or gone in where.parents:
+        for path in (self.out / n for n in (CARRY.format(0), CARRY.format(1), HIDDEN, CONFIDENCE, SUGGEST)):
+            for given in run_inputs(self.identity):
+                if resolved(given) == resolved(path) or resolved(path) in resolved(given).parents:
                     raise OutputError(f"{path}: holds {given}, an input of this run, and a run started over in "
                                       f"{self.out} removes it; move the input or choose another --out")
-        kept = {resolved(p) for p in inputs}  # the key labels in --out, or --out a folder of them: kept
-        for f in labels_written(self.out):
-            if resolved(f) not in kept and resolved(f).parent not in kept:
-                f.unlink(missing_ok=True)
-        for slot in (0, 1):
-            (self.out / CARRY.format(slot)).unlink(missing_ok=True)
-        shutil.rmtree(self.out / HIDDEN, ignore_errors=True)
-        shutil.rmtree(self.out / CONFIDENCE, ignore_errors=True)
-        (self.out / SUGGEST).unlink(missing_ok=True)
+        self.earlier.set_aside(self._written())
+
+    def _written(self) -> list[Path]:
+        """The files and folders of the run in ``out`` (:meth:`_start_over`'s), but the run's inputs (the key labels in
+        --out, or --out a folder of them)."""
+        from ..formats import resolved
+
+        kept = {resolved(p) for p in run_inputs(self.identity)}
+        names = [self.out / n for n in (CARRY.format(0), CARRY.format(1), HIDDEN, CONFIDENCE, SUGGEST, STEPS, STATE)]
+        return [f for f in sorted(labels_written(self.out)) + names if resolved(f) not in kept and resolved(f).parent not in kept]
 
     def _remove_partial_writes(self) -> None:
         """Delete the temporary files of writes a killed run left half done (``.NAME.*.tmp`` of a label

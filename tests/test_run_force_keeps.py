@@ -71,3 +71,22 @@ def test_a_run_started_over_and_interrupted_keeps_both_until_the_new_one_finishe
         f"{EARLIER}/confidence/{name.split('/')[1]}": digest for name, digest in earlier.items() if name.startswith("confidence/")}
     assert main(run) == 0  # resumed
     assert not (out / EARLIER).exists() and not (out / "confidence").exists() and (out / "f5.png").is_file()
+
+
+def test_the_recording_of_a_run_started_over_is_put_back_with_it(tmp_path, capsys):
+    """The earlier recording was written over (or removed, bad input at the first frame) by the run started over."""
+    from pcreg.recording.readback import ended
+
+    folder, key = drifting_frames(tmp_path / "frames", n=6)
+    out, record = tmp_path / "out", tmp_path / "run.rrd"
+    run = ["run", str(folder), "--labels", str(key), "--out", str(out), "--record", str(record)]
+    assert main(run) == 0
+    earlier, good = record.read_bytes(), (folder / "f3.png").read_bytes()
+    for bad in ("f3.png", "f1.png"):
+        (folder / bad).write_bytes(b"not a picture")
+        assert main([*run, "--force"]) == 2
+        assert record.read_bytes() == earlier and [p.name for p in tmp_path.iterdir() if "rrd" in p.name] == ["run.rrd"]
+        (folder / bad).write_bytes(good)
+    assert main([*run, "--force", "--stop", "3"]) == 0
+    assert record.read_bytes() != earlier and ended(record)
+    assert [p.name for p in tmp_path.iterdir() if "rrd" in p.name] == ["run.rrd"]

@@ -7,7 +7,9 @@ partway that does not read, or is of another size), the new run's files are take
 run's put back as they were: bad input loses nothing. Finished, the earlier run is deleted. Interrupted (or
 stopped by a bug), both stay: the new run resumes (the same command without ``--force``), and the earlier one
 is deleted when a run in the folder finishes, or when another run starts over there (a run killed after it
-started over left it: what the folder holds then is the run started over).
+started over left it: what the folder holds then is the run started over). The ``--record`` file a run started
+over writes again is kept so too, beside itself (``.NAME.earlier``): put back with the run, deleted when the new
+run finishes or is interrupted (the new recording is the one a resumed run goes on from).
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ class Earlier:
         self.out = out
         self.folder = out / EARLIER
         self.moved: list[Path] = []  # the paths in ``out`` moved aside by this process, to put back
+        self.beside: list[tuple[Path, Path]] = []  # (a file elsewhere, where it was moved aside) by this process
 
     def set_aside(self, paths: Iterable[Path]) -> None:
         """Move each of ``paths`` (files or folders in ``out``; those that are not there skipped) aside, into
@@ -51,6 +54,17 @@ class Earlier:
                                   f"{exc.strerror or exc}") from None
             self.moved.append(path)
 
+    def set_aside_file(self, path: Path) -> None:
+        """Move the file ``path`` (a recording the run writes again; not there: nothing) aside, beside itself."""
+        if not path.is_file():
+            return
+        aside = path.with_name(f".{path.name}.earlier")
+        try:
+            os.replace(path, aside)
+        except OSError as exc:
+            raise OutputError(f"cannot move {path} aside to {aside} to start over: {exc.strerror or exc}") from None
+        self.beside.append((path, aside))
+
     def put_back(self, written: Iterable[Path]) -> None:
         """Take the files and folders the new run has ``written`` away and put the earlier run's back where they were."""
         for path in written:
@@ -64,8 +78,14 @@ class Earlier:
         self.drop()
 
     def drop(self) -> None:
-        """Delete the earlier run's files."""
+        """Delete the earlier run's files (and a recording set aside)."""
         shutil.rmtree(self.folder, ignore_errors=True)
+        self._drop_beside()
+
+    def _drop_beside(self) -> None:
+        for _, aside in self.beside:
+            aside.unlink(missing_ok=True)
+        self.beside = []
 
     @contextmanager
     def kept(self, written) -> Iterator[None]:
@@ -74,7 +94,13 @@ class Earlier:
         try:
             yield
         except (InputError, OutputError):
+            for path, aside in self.beside:
+                os.replace(aside, path)
+            self.beside = []
             if self.moved:
                 self.put_back(written())
+            raise
+        except BaseException:
+            self._drop_beside()
             raise
         self.drop()

@@ -46,11 +46,12 @@ def check_recording(out: Path, identity: dict | None, record: Path) -> None:
                       "over from the key frame, same labels)")
 
 
-def run_recording(request, table):
+def run_recording(request, table, earlier=None):
     """The run's recording (:func:`pcreg.recording.recorder.open_recording` of ``request.record``, None for none),
     opened once the run knows it has frames to label: a file there already (the recording of the run as Ctrl-C
     stopped it, which the same command resumes) is refused saying the two ways on, not "exists, use --force"
-    alone, which labels every frame again."""
+    alone, which labels every frame again; with ``--force``, moved aside first (``earlier``, the run's
+    :class:`~pcreg.runs.earlier.Earlier`), to be put back if bad input stops the run."""
     import contextlib
 
     from ..errors import OutputError
@@ -64,6 +65,8 @@ def run_recording(request, table):
         raise OutputError(f"{request.record} exists (the recording of this run as it stopped, or another file); to go "
                           "on from there, give another --record file (it holds the frames from there on); to record "
                           "every frame in this one, add --force (the run starts over from the key frame, same labels)")
+    if request.force and earlier is not None:
+        earlier.set_aside_file(Path(request.record))
     return open_recording(request.record, name=f"run {request.frames}", raw=request.record_raw, force=request.force,
                           classes=table)
 

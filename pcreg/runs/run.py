@@ -198,7 +198,7 @@ class Run:
             except InputError as exc:  # a carry of another stream
                 raise OutputError(f"{out}: {exc}; use --force to start over") from None
         done = start
-        with run_recording(request, self.table) as rec, \
+        with run_recording(request, self.table, self.earlier) as rec, \
                 progress(total=None if total is None or total <= start else total - start, desc="frames", disable=None) as bar, \
                 WriteBehind() as writer:  # a frame's outputs written while the next is labelled
             self.name_recording(request.record, f"{frames.name(start)} on" if start > 1 else None)
@@ -237,7 +237,7 @@ class Run:
             nothing_to_record(request.record)  # an existing recording is this finished run's: nothing to add to it
             self._say_done(request, 0, sorted(keys))
             return
-        with run_recording(request, self.table) as rec:
+        with run_recording(request, self.table, self.earlier) as rec:
             self.name_recording(request.record, f"steps.jsonl line {self.state['lines'] + 1} on" if self.state["lines"] else None)
             n = len(frames) if frames.kind == "folder" else frames.count()
             left = None if n is None else max(0, n - len(keys) - self.state["lines"])  # what the bar counts, not the run

@@ -464,6 +464,8 @@ def _interrupted(args) -> int:
         return 130
     again = ("the same command with another --record file (the recording holds what was done)"
              if getattr(args, "record", None) else "the same command")
+    if getattr(args, "force", False):  # which starts over
+        again = again.replace("the same command", "the same command without --force", 1)
     kept = "the frames labelled are kept" if module.endswith(".run") else "finished units are kept"
     sys.stderr.write(f"pcreg: interrupted ({kept}; rerun {again} to resume)\n")
     return 130

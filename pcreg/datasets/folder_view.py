@@ -15,10 +15,13 @@ from pathlib import Path
 
 from ..errors import InputError
 
-__all__ = ["ORIENTATION", "FolderView", "file_view"]
+__all__ = ["GOES_ON", "ORIENTATION", "FolderView", "file_view"]
 
 #: The kind of note (run.json's ``"notes"``) of a key frame whose EXIF orientation its labels' size cannot tell.
 ORIENTATION = "orientation"
+#: What a refusal of a frame of another size adds: the frames before it are kept (a run started over puts its earlier
+#: run back instead, :mod:`pcreg.runs.earlier`, which takes these words away).
+GOES_ON = " (the frames before it are labelled and kept: the same command goes on from it)"
 
 #: What to do with frames stored otherwise than shown, said in every refusal and note of this module.
 TURN = ("turn every frame as it is shown first (exiftran -ai *.jpg, or Pillow's ImageOps.exif_transpose), then draw "
@@ -90,5 +93,4 @@ class FolderView:
         if self.shape is not None and tuple(shape) != self.shape:
             h, w = shape
             raise InputError(f"{path}: {w}x{h} px, the first frame {self.key.name} {self.shape[1]}x{self.shape[0]}: "
-                             f"pcreg labels frames of one size; resize or crop it to {self.shape[1]}x{self.shape[0]} "
-                             "(the frames before it are labelled and kept: the same command goes on from it)")
+                             f"pcreg labels frames of one size; resize or crop it to {self.shape[1]}x{self.shape[0]}{GOES_ON}")

@@ -1,26 +1,33 @@
-"""The earlier run a run started over (``pcreg run --force``) replaces, kept until the new run is past bad input.
+"""The earlier run a run started over (``pcreg run --force``) replaces, kept until the new run has finished.
 
 A run started over in a folder that holds an earlier run moves that run's files aside as it begins (into
-``OUT/.earlier-run/``, renames within the folder) instead of deleting them. Stopped by bad input or an output it
-cannot write (an :class:`~pcreg.errors.InputError` or :class:`~pcreg.errors.OutputError`, exit 2: a frame
-partway that does not read, or is of another size), the new run's files are taken away again and the earlier
-run's put back as they were: bad input loses nothing. Finished, the earlier run is deleted. Interrupted (or
-stopped by a bug), both stay: the new run resumes (the same command without ``--force``), and the earlier one
-is deleted when a run in the folder finishes, or when another run starts over there (a run killed after it
-started over left it: what the folder holds then is the run started over). The ``--record`` file a run started
-over writes again is kept so too, beside itself (``.NAME.earlier``): put back with the run, deleted when the new
-run finishes or is interrupted (the new recording is the one a resumed run goes on from).
+``OUT/.earlier-run/``, renames within the folder, run.json last) instead of deleting them, and its ``--record``
+file beside itself (``.NAME.earlier``). What becomes of them:
+
+- the new run finishes: they are deleted;
+- it is interrupted (Ctrl-C, SIGTERM): the new run stays, to resume (the same command without ``--force``), and
+  the earlier run stays aside until a run in the folder finishes (the recording set aside is deleted: the new one
+  is what a resumed run goes on from);
+- anything else stops it (bad input, exit 2: a frame partway that does not read, or is of another size; an output
+  that cannot be written, memory run out, a bug): the new run's files are taken away and the earlier run's put
+  back as they were, its recording too, and the error says so. Bad input loses nothing.
+
+A run killed while it moved the files aside left some in the folder (no run.json among them): the next run
+started over there moves the rest beside them. A run killed later left a whole earlier run there (its run.json
+moved last): the next run started over deletes it, since what ``OUT`` holds then is the run started over.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterable, Iterator
+from typing import Callable, Iterable, Iterator
 
-from ..errors import InputError, OutputError
+from ..errors import DatasetError, InputError, OutputError
+from .files import STATE
 
 __all__ = ["EARLIER", "Earlier"]
 
@@ -34,25 +41,35 @@ class Earlier:
     def __init__(self, out: Path) -> None:
         self.out = out
         self.folder = out / EARLIER
-        self.moved: list[Path] = []  # the paths in ``out`` moved aside by this process, to put back
-        self.beside: list[tuple[Path, Path]] = []  # (a file elsewhere, where it was moved aside) by this process
+        self.aside = False  # whether this process moved the run in ``out`` aside (its files are in :attr:`folder`)
+        self.beside: list[tuple[Path, Path]] = []  # (a file elsewhere, where this process moved it aside)
 
     def set_aside(self, paths: Iterable[Path]) -> None:
-        """Move each of ``paths`` (files or folders in ``out``; those that are not there skipped) aside, into
-        :attr:`folder` under its name. A folder left by a run killed after it started over is deleted first:
-        what ``out`` holds now is the run started over then."""
-        if not self.moved:
-            shutil.rmtree(self.folder, ignore_errors=True)
+        """Move each of ``paths`` (files or folders in ``out``, run.json last; those not there skipped) into
+        :attr:`folder` under its name; a move that fails puts the ones before it back and is an :class:`OutputError`."""
+        if os.path.islink(self.folder) or (os.path.lexists(self.folder) and not self.folder.is_dir()):
+            raise OutputError(f"{self.folder}: not the folder pcreg run keeps an earlier run in while a run started "
+                              "over there has not finished; remove it, or choose another --out")
+        if (self.folder / STATE).exists():  # a whole earlier run, left by a run started over and killed
+            shutil.rmtree(self.folder)
+        moved: list[Path] = []
         for path in paths:
             if not os.path.lexists(path):
                 continue
             try:
                 self.folder.mkdir(exist_ok=True)
                 os.replace(path, self.folder / path.name)
-            except OSError as exc:
+            except BaseException as exc:  # a file that will not move, or Ctrl-C: the ones moved go back
+                for done in reversed(moved):
+                    os.replace(self.folder / done.name, done)
+                with contextlib.suppress(OSError):
+                    self.folder.rmdir()  # made here, or left by a run killed while it moved: only when empty
+                if not isinstance(exc, OSError):
+                    raise
                 raise OutputError(f"cannot move {path} aside into {self.folder} to start over: "
-                                  f"{exc.strerror or exc}") from None
-            self.moved.append(path)
+                                  f"{exc.strerror or exc}; the earlier run is left as it was") from None
+            moved.append(path)
+        self.aside = self.folder.is_dir()
 
     def set_aside_file(self, path: Path) -> None:
         """Move the file ``path`` (a recording the run writes again; not there: nothing) aside, beside itself."""
@@ -65,17 +82,35 @@ class Earlier:
             raise OutputError(f"cannot move {path} aside to {aside} to start over: {exc.strerror or exc}") from None
         self.beside.append((path, aside))
 
-    def put_back(self, written: Iterable[Path]) -> None:
-        """Take the files and folders the new run has ``written`` away and put the earlier run's back where they were."""
+    def put_back(self, written: Iterable[Path]) -> list[str]:
+        """Put the recording set aside back, and, when the run in ``out`` was set aside, take the files and folders the
+        new run has ``written`` away and put the earlier run's back; what could not be done, said (none: [])."""
+        failed: list[str] = []
+        for path, aside in self.beside:
+            try:
+                os.replace(aside, path)
+            except OSError as exc:
+                failed.append(f"{aside} ({exc.strerror or exc})")
+        self.beside = []
+        if not self.aside:
+            return failed
         for path in written:
-            if path.is_dir() and not path.is_symlink():
-                shutil.rmtree(path, ignore_errors=True)
-            else:
-                path.unlink(missing_ok=True)
-        for path in self.moved:
-            os.replace(self.folder / path.name, path)
-        self.moved = []
-        self.drop()
+            try:
+                if path.is_dir() and not path.is_symlink():
+                    shutil.rmtree(path)
+                else:
+                    path.unlink(missing_ok=True)
+            except OSError as exc:
+                failed.append(f"{path} ({exc.strerror or exc})")
+        for name in sorted(os.listdir(self.folder)):
+            try:
+                os.replace(self.folder / name, self.out / name)
+            except OSError as exc:
+                failed.append(f"{self.folder / name} ({exc.strerror or exc})")
+        if not failed:
+            self.drop()
+        self.aside = False
+        return failed
 
     def drop(self) -> None:
         """Delete the earlier run's files (and a recording set aside)."""
@@ -88,19 +123,36 @@ class Earlier:
         self.beside = []
 
     @contextmanager
-    def kept(self, written) -> Iterator[None]:
-        """Around a run's labelling: put the earlier run back when bad input or an output that cannot be written stops
-        the new one (``written()``: the paths the new run wrote), delete it when the run finishes."""
+    def kept(self, written: Callable[[], list[Path]]) -> Iterator[None]:
+        """Around a run's labelling: the earlier run deleted when it finishes, kept aside when it is interrupted, put
+        back when anything else stops it (``written()``: the paths the new run wrote; see the module's docstring)."""
+        from .._runner import interrupted
+
         try:
             yield
-        except (InputError, OutputError):
-            for path, aside in self.beside:
-                os.replace(aside, path)
-            self.beside = []
-            if self.moved:
-                self.put_back(written())
-            raise
-        except BaseException:
-            self._drop_beside()
-            raise
+        except BaseException as exc:
+            if isinstance(exc, KeyboardInterrupt) or interrupted():
+                self._drop_beside()
+                raise
+            if not (self.aside or self.beside):
+                raise
+            records, was_aside = [str(path) for path, _ in self.beside], self.aside
+            failed = self.put_back(written())
+            if type(exc) not in (InputError, OutputError, DatasetError):
+                raise
+            if failed:
+                said = f"; the earlier run could not be put back wholly: {', '.join(failed[:3])} left as they are"
+            elif was_aside:
+                said = f"; {self.out} holds the earlier run again, as it was"
+            else:
+                said = f"; {', '.join(records)} holds the earlier recording again, as it was"
+            raise type(exc)(f"{_without_going_on(exc)}{said}") from None
         self.drop()
+
+
+def _without_going_on(exc: BaseException) -> str:
+    """``exc``'s words without the note that the frames labelled before a bad frame are kept (a run started over
+    keeps the earlier run's instead)."""
+    from ..datasets.folder_view import GOES_ON
+
+    return str(exc).replace(GOES_ON, "")

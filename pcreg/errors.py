@@ -41,6 +41,12 @@ class ImageWarning(UserWarning):
     the same as notes)."""
 
 
+
+class UncalibratedWarning(UserWarning):
+    """A confidence asked of options it was not calibrated at: a :class:`pcreg.Propagator` whose prior's ``weight`` is
+    not the stream's (its confidence's coefficients were fitted at that weight), whose confidence and predicted error
+    then read surer, or less sure, than its labels are."""
+
 def outside_pcreg() -> int:
     """The ``stacklevel`` that points a warning the calling function warns at the first line outside pcreg: the
     user's call, however deep in pcreg it was made (``pcreg.crosscheck(path, path)`` reads its images)."""

@@ -48,7 +48,7 @@ def check_int(value, name: str, *, lo: int | None = None, hi: int | None = None)
         raise InputError(f"{name} must be an integer, got {short_repr(value)}")
     v = int(value)
     if (lo is not None and v < lo) or (hi is not None and v > hi):
-        raise InputError(f"{name} must be in {range_text(lo, hi)}, got {v}")
+        raise InputError(f"{name} must be {'' if hi is None else 'in '}{range_text(lo, hi)}, got {v}")
     return v
 
 

@@ -486,7 +486,8 @@ def check_labels(labels, shape, table=None) -> np.ndarray:
     if shape is not None and lab.shape != tuple(shape):
         raise InputError(f"labels of shape {lab.shape} for an image of shape {tuple(shape)}")
     if not (np.issubdtype(lab.dtype, np.integer) or lab.dtype == np.bool_):
-        raise InputError(f"labels must be integers (0 ground, 1 obstacle, 2 unknown), got {lab.dtype}")
+        ids = "0 ground, 1 obstacle, 2 unknown" if table is None else f"the ids of {table.source or 'the class table'}"
+        raise InputError(f"labels must be integers ({ids}), got {lab.dtype}")
     if table is not None and not binary_table(table):
         return np.array(table.check_labels(lab, "the key frame's labels"))  # the table's check keeps a uint8 array
     if lab.size and (lab.min() < 0 or lab.max() > 2):

@@ -61,7 +61,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--init", choices=("identity", "auto"), default="identity",
                    help="with a global --model: the registration's start, identity (default) or auto (global "
                         "search too)")
-    p.add_argument("--weight", type=float, default=2.0, help="fusion weight of the prior (default 2; 0 = naive Bayes)")
+    p.add_argument("--weight", type=float, default=2.0, help="fusion weight of the prior (default 2, the weight the confidence is calibrated at; 0 = naive Bayes)")
     p.add_argument("--scale", type=float, default=1.0, metavar="S",
                    help="run each step at this share of the frames' width and height (0 < S <= 1; default 1); the "
                         "labels come back at full size. 0.5 runs the step 1.8x faster, a little less accurate")
@@ -84,6 +84,7 @@ def run(args: argparse.Namespace) -> int:
     from ..classes.keys import LabelCoding
     from ..datasets.sources import Selection
     from ..pipeline.config import PropagatorConfig
+    from ..pipeline.stream import STREAM_WEIGHT
     from ..runs.run import Run, RunRequest
 
     config = PropagatorConfig(model=args.model, preset=args.preset, backend=args.backend, init=args.init,
@@ -92,4 +93,10 @@ def run(args: argparse.Namespace) -> int:
                          Selection(args.start, args.stop, args.every), LabelCoding(args.classes, args.mapping),
                          truth=None if args.truth is None else Path(args.truth), confidence=args.confidence,
                          suggest=args.suggest, force=args.force, record=args.record, record_raw=args.record_raw)
+    if config.weight != STREAM_WEIGHT:  # the closing message says it, beside the predicted error, not every stream
+        import warnings
+
+        from ..errors import UncalibratedWarning
+
+        warnings.filterwarnings("ignore", category=UncalibratedWarning)
     return Run.label(request)

@@ -74,6 +74,7 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
+from .._calls import one_caller
 from ..errors import InputError
 from ..frame import PreparedFrame
 from .bars import Bars, kept_between
@@ -382,6 +383,7 @@ class ObjectFollower:
         follower.classifier = fit_classifier([Frame(key.rgb, lab, "key")])
         return follower
 
+    @one_caller
     def reset(self, image, labels: np.ndarray) -> None:
         """Start at a labelled key frame: image (H, W, 3) uint8 RGB (or a PreparedFrame), labels (H, W)
         uint8 with 0 background, 1 the object, 2 unknown. A key frame refused (an :class:`InputError`) leaves
@@ -420,6 +422,7 @@ class ObjectFollower:
         self._frame = 0
         self.last = self.log_odds = None
 
+    @one_caller
     def step(self, image) -> np.ndarray:
         """Labels (H, W) uint8 (1 the object) of the next frame, an image or a PreparedFrame; see :attr:`last`."""
         from .._threads import both
@@ -511,6 +514,7 @@ class ObjectFollower:
     #: The stream interface's :attr:`pcreg.Propagator.scene`: the follower's cut test reads its carry instead.
     scene = None
 
+    @one_caller
     def resume(self, frame: int, carry: FollowCarry | None, learned=None, scene=None) -> None:
         """Continue after step ``frame`` with the ``carry`` it left (:attr:`carry`, as saved): the next step
         does what it would have done in the uninterrupted stream (``scene``: the stream interface's, never

@@ -81,11 +81,13 @@ Why the defaults (measured on CamVid clips, first frame as the key frame; docs/r
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
+from .._calls import one_caller
 from .._threads import alongside
 from .bars import Bars
 from ..classification.features import DEFAULT_FEATURES
@@ -99,7 +101,7 @@ from .prior import class_prior, fused_labels, fused_log_odds, pixel_weight, prio
 from .trust import CLASS_TRUST, STREAM_TRUST, Trusted, TrustedKey, TrustRule, least_confident
 from .working import WorkingSize
 from ..classes.keys import binary_table, check_key_classes, check_labels, lagr_ids
-from ..errors import InputError
+from ..errors import InputError, UncalibratedWarning, outside_pcreg
 from ..frame import PreparedFrame
 from ..registration.config import RegisterConfig
 from ..registration.flow import DIS_MIN_SIDE
@@ -234,6 +236,10 @@ class Propagator:
         self.preset = preset  # a flow's DIS preset (None for the other models)
         self._estimator: StreamMotion = stream_motion(model, preset, self.config, dense, self._dense_options)
         self.weight = float(weight)
+        if trust is not None and self.weight != STREAM_WEIGHT:  # the confidence's coefficients were fitted at it
+            warnings.warn(UncalibratedWarning(f"Propagator(weight={self.weight:g}): the confidence and the predicted error are "
+                                              f"calibrated at weight {STREAM_WEIGHT:g}; at another they read surer, or less "
+                                              "sure, than the labels are"), stacklevel=outside_pcreg())
         # K classes (any but ground and obstacle): the step of :mod:`pcreg.pipeline.multiclass`, its priors at
         # their share of the weight, and the stream's trust rule as it reads many classes
         self._classes = None if binary else np.asarray(classes, np.uint8)
@@ -280,6 +286,7 @@ class Propagator:
         prop.reset(key, lab)
         return prop
 
+    @one_caller
     def reset(self, image: np.ndarray, labels: np.ndarray) -> None:
         """Start at a labelled key frame: image (H, W, 3) uint8 RGB, labels (H, W) uint8, the ids of the
         classifier's class table (by default 0 ground, 1 obstacle, 2 unknown). A dense stream anchored to the
@@ -297,7 +304,7 @@ class Propagator:
         lab = check_key_classes(check_labels(labels, full.shape, table), table, self._classes)
         self._size = size = WorkingSize(full.shape, self.scale)
         if size.scaled or self._estimator.checks_every_size:  # a size the motion cannot take: refused here
-            self._check_working_size(size)
+            size.check_for(self._estimator, self.model, self.scale, SCALE_ADVICE)
         key = size.shrunk(full) if size.scaled else full.copy()  # the caller may reuse its array for the frames
         self._key, self._key_labels = key, lab
         self._key_trusted = self._key_flow = self._key_scene = None
@@ -330,19 +337,7 @@ class Propagator:
         self._frame = 0
         self.last = None
 
-    def _check_working_size(self, size: WorkingSize) -> None:
-        """Refuse a working size the motion cannot take (its pyramid's levels, the dense grid's spacing,
-        DIS's smallest side) when the key frame comes, naming the scale (or the frames' size when they are
-        not scaled), instead of at the first frame."""
-        (H, W), (h, w) = size.frame, size.shape
-        try:
-            self._estimator.check_size(size.shape)
-        except InputError as exc:
-            if not size.scaled:
-                raise InputError(f"frames of {W}x{H} are too small for the {self.model} model ({exc})") from None
-            raise InputError(f"scale {self.scale:g} works at {w}x{h} for frames of {W}x{H}: too small for the "
-                             f"{self._estimator.name} ({exc}){SCALE_ADVICE}") from None
-
+    @one_caller
     def step(self, image: "np.ndarray | PreparedFrame") -> np.ndarray:
         """Labels (H, W) uint8 (0 ground, 1 obstacle; with more classes their ids) of the next frame, an
         image or a :class:`~pcreg.frame.PreparedFrame` (checked once here; naive Bayes, both motions and the learning
@@ -525,6 +520,7 @@ class Propagator:
         the next step); the step's own learning is left to the helper thread."""
         return (lambda: None) if self._learner is None else self._learner.stream_later()
 
+    @one_caller
     def resume(self, frame: int, carry: "Carry | ChainCarry | None", learned: np.ndarray | None = None,
                scene: Scene | None = None) -> None:
         """Continue a stream after its step ``frame`` (counted from the key frame, as :attr:`StepReport.frame`)
@@ -561,16 +557,20 @@ class Propagator:
         if self._key_scene is not None:
             self._key_scene.restore(scene)
 
+    def __copy__(self) -> "Propagator":
+        """A fork of the stream: :func:`copy.deepcopy` (a shallow copy shared the state its steps change in place)."""
+        import copy
+
+        return copy.deepcopy(self)
+
     @property
     def working_size(self) -> WorkingSize | None:
-        """The frames' size (its ``frame``: the labels' and the confidence's) and the size the steps run at
-        (its ``shape``: the report's other maps'); None before :meth:`reset`."""
+        """The frames' size (its ``frame``: the labels' and the confidence's) and the size the steps run at (its ``shape``: the report's other maps'); None before :meth:`reset`."""
         return self._size
 
     @property
     def classes(self) -> np.ndarray | None:
-        """With more than two classes (:mod:`pcreg.pipeline.multiclass`) the classifier's class ids, in the
-        order of the class scores' channels; None for ground and obstacle."""
+        """With more than two classes (:mod:`pcreg.pipeline.multiclass`) the classifier's class ids, in the order of the class scores' channels; None for ground and obstacle."""
         return None if self._classes is None else self._classes.copy()
 
     @property

@@ -49,6 +49,22 @@ class WorkingSize:
         """Whether the working size is below the frames' own."""
         return self.shape != self.frame
 
+    def check_for(self, motion, model: str, scale: float, advice: str = "") -> None:
+        """Refuse this working size when the stream's ``motion`` (a :class:`~pcreg.pipeline.estimators.StreamMotion`
+        of ``model``) cannot take it (its pyramid's levels, the dense grid's spacing, DIS's smallest side), naming the
+        ``scale`` and ending with ``advice`` (or the frames' size when they are not scaled): when the key frame comes,
+        not at the first frame."""
+        from ..errors import InputError
+
+        (H, W), (h, w) = self.frame, self.shape
+        try:
+            motion.check_size(self.shape)
+        except InputError as exc:
+            if not self.scaled:
+                raise InputError(f"frames of {W}x{H} are too small for the {model} model ({exc})") from None
+            raise InputError(f"scale {scale:g} works at {w}x{h} for frames of {W}x{H}: too small for the "
+                             f"{motion.name} ({exc}){advice}") from None
+
     def shrunk(self, frame: PreparedFrame) -> PreparedFrame:
         """``frame`` at the working size (itself at full size); made once and kept with the frame."""
         if not self.scaled:

@@ -569,7 +569,7 @@ class Run:
         steps = self._predicting_steps() if steps is None else steps
         lost = lost_summary(steps, key_classes(self.out, self.table, self.state.get("key_frame")), self.frames.stem, self.table)
         return (truth_summary(steps, self.table) if truth else "") + predicted_summary(steps, self.frames.stem, self.table,
-                                                                                      self.out, lost)
+                                                                                      self.out, lost, (self.identity or {}).get("weight"))
 
     @staticmethod
     def read(folder: Path) -> tuple[dict, list[str], list[str]]:

@@ -10,6 +10,7 @@ import numpy as np
 
 from ..classes.table import listed_name
 from ..outputs import shell_word
+from ..pipeline.stream import STREAM_WEIGHT
 
 __all__ = ["predicted_summary", "truth_summary", "lost_summary", "key_classes", "LISTED"]
 
@@ -18,11 +19,13 @@ __all__ = ["predicted_summary", "truth_summary", "lost_summary", "key_classes", 
 LISTED = 12
 
 
-def predicted_summary(steps: dict[int, dict], stem: Callable[[int], str], table, out: Path, lost: str = "") -> str:
+def predicted_summary(steps: dict[int, dict], stem: Callable[[int], str], table, out: Path, lost: str = "",
+                      weight: float | None = None) -> str:
     """The run's predicted error as lines of its closing message ("" when no step predicted one): the mean over the
     frames labelled, the frame predicted worst (``stem``: a frame's name by its position), the class of ``table`` of
     the lowest mean predicted IoU, ``lost`` (:func:`lost_summary`'s line) and the command that shows the labels in
-    ``out`` on the frames. ``steps``:
+    ``out`` on the frames; a run of another ``weight`` (``--weight``) than the one the confidence is calibrated at
+    says so after the predicted error. ``steps``:
     {frame: its step} of the steps with a predicted error (:meth:`pcreg.runs.run.Run.predicted`)."""
     if not steps:
         return ""
@@ -30,6 +33,9 @@ def predicted_summary(steps: dict[int, dict], stem: Callable[[int], str], table,
     worst = max(predicted, key=lambda t: predicted[t])
     line = (f"\npredicted error: {sum(predicted.values()) / len(predicted):.2f}% of a frame's pixels on average "
             f"over {len(predicted)} frame(s), {predicted[worst]:.2f}% at most ({stem(worst)})")
+    if weight is not None and weight != STREAM_WEIGHT:
+        line += (f" (the confidence is calibrated at the default --weight {STREAM_WEIGHT:g}: at {weight:g} it and the "
+                 "predicted error read surer, or less sure, than the labels are)")
     ious = _mean_ious(steps, "predicted_iou", table)
     if ious:  # a small class can be half wrong while the frame's error reads a few %
         c = min(ious, key=lambda c: ious[c][0])

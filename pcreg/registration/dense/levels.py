@@ -135,6 +135,16 @@ class DenseReference:
         h, w = self.image.shape[:2]
         return f"DenseReference(image={w}x{h}, levels={len(self.levels)})"
 
+    def __reduce__(self):
+        """Copied and pickled as what it holds, made again read-only (its weights' read-only view alone cannot be)."""
+        return _prepared_again, (self.image, self.levels, self.valid, dict(self.grid_weights))
+
+
+def _prepared_again(image: np.ndarray, levels: tuple, valid: tuple, weights: dict) -> DenseReference:
+    """A :class:`DenseReference` of what one held (:meth:`DenseReference.__reduce__`)."""
+    _read_only(image, *levels, *valid, *(a for arrays in weights.values() for a in arrays))
+    return DenseReference(image, tuple(levels), tuple(valid), MappingProxyType(weights))
+
 
 def prepare_reference(reference_image: np.ndarray, *, options: DenseOptions = DenseOptions()) -> DenseReference:
     """``reference_image`` (as :func:`pcreg.register_dense` takes it) prepared for registrations with

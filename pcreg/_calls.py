@@ -1,0 +1,65 @@
+"""How pcreg's public calls behave towards their caller's program: a Ctrl-C is a ``KeyboardInterrupt``, and a stream
+is stepped by one thread at a time.
+
+- **A Ctrl-C landing in a compiled kernel** (numba) comes out of it as a ``SystemError`` ("returned a result with an
+  exception set") whose cause is the ``KeyboardInterrupt``: a caller's ``except KeyboardInterrupt`` missed it, and a
+  ``SystemError`` reads as a bug. :func:`interruptible` raises the ``KeyboardInterrupt`` itself.
+- **One stream, one caller at a time.** A :class:`pcreg.Propagator` is one stream whose steps follow each other: two
+  threads stepping (or resetting) it at once interleaved its steps and raised whatever the other thread's half-made
+  state gave (an ``AttributeError``, or an :class:`~pcreg.errors.InputError` of two sizes blaming the frames).
+  :func:`one_caller` refuses a call made while another thread's call on the same object runs, in one line.
+"""
+
+from __future__ import annotations
+
+import functools
+import threading
+from typing import Callable, TypeVar
+
+from .errors import InputError
+
+__all__ = ["interruptible", "one_caller"]
+
+F = TypeVar("F", bound=Callable)
+
+#: The attribute of an object that holds the thread running a call on it (only while one runs: never pickled).
+CALLER = "_pcreg_caller"
+
+
+def interruptible(fn: F) -> F:
+    """``fn``, raising the ``KeyboardInterrupt`` that a compiled kernel wrapped in a ``SystemError``."""
+
+    @functools.wraps(fn)
+    def call(*args, **kwargs):
+        try:
+            return fn(*args, **kwargs)
+        except SystemError as exc:
+            cause = exc.__cause__ if exc.__cause__ is not None else exc.__context__
+            if isinstance(cause, KeyboardInterrupt):
+                raise cause.with_traceback(None) from None
+            raise
+
+    return call  # type: ignore[return-value]
+
+
+def one_caller(method: F) -> F:
+    """``method`` of an object, :func:`interruptible`, refused while another thread runs a call so guarded on the same
+    object (the same thread may call one inside another)."""
+    run = interruptible(method)
+
+    @functools.wraps(method)
+    def call(self, *args, **kwargs):
+        me, held = threading.get_ident(), self.__dict__
+        first = CALLER not in held  # not a call inside this thread's own
+        holder = held.setdefault(CALLER, me)  # atomic under the GIL: the first thread in holds it
+        if holder != me:
+            raise InputError(f"{type(self).__name__}.{method.__name__} called while another thread's call on the same "
+                             f"{type(self).__name__} runs: a stream's steps follow each other; use one per thread, "
+                             "or call it from one thread (or under a lock)")
+        try:
+            return run(self, *args, **kwargs)
+        finally:
+            if first:
+                self.__dict__.pop(CALLER, None)  # the object's dict now (a refused reset puts its old one back)
+
+    return call  # type: ignore[return-value]

@@ -1,0 +1,138 @@
+"""`pcreg.Propagator` as a caller's program meets it: Ctrl-C in a compiled kernel is a KeyboardInterrupt, a second
+thread's call while one runs is refused, a copy is a fork, and a weight the confidence was not calibrated at warns."""
+
+from __future__ import annotations
+
+import copy
+import pickle
+import threading
+import warnings
+
+import numpy as np
+import pytest
+
+from pcreg import Propagator
+from pcreg._calls import interruptible
+from pcreg.errors import InputError, UncalibratedWarning
+from _runs import drifting_frames
+
+
+def _stream(tmp_path, n=6, **options):
+    """``(key frame, its labels, the frames after it)`` of a drifting textured scene, and a Propagator reset to it."""
+    import cv2
+
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    folder, key = drifting_frames(tmp_path / "frames", shape=(96, 128), n=n)
+    frames = [cv2.imread(str(p))[:, :, ::-1].copy() for p in sorted(folder.iterdir())]
+    labels = cv2.imread(str(key), cv2.IMREAD_UNCHANGED)
+    return frames, labels, Propagator.from_key_frame(frames[0], labels, **options)
+
+
+def _interrupted_kernel(*args, **kwargs):
+    """What numba's dispatcher gives when a Ctrl-C lands while its kernel runs: a SystemError from the interrupt."""
+    try:
+        raise KeyboardInterrupt
+    except KeyboardInterrupt as exc:
+        raise SystemError("CPUDispatcher(<function _match_window_py>) returned a result with an exception set") from exc
+
+
+def test_a_ctrl_c_in_a_compiled_kernel_is_a_keyboard_interrupt_and_the_stream_goes_on(tmp_path, monkeypatch):
+    """It came out of step as a SystemError, which a caller's `except KeyboardInterrupt` misses and reads as a bug."""
+    import pcreg.registration.dense.window as window
+
+    frames, labels, prop = _stream(tmp_path)
+    _, _, reference = _stream(tmp_path / "b")
+    for f in frames[1:3]:
+        prop.step(f)
+        reference.step(f)
+    monkeypatch.setattr(window, "_match_window_jit", _interrupted_kernel)
+    with pytest.raises(KeyboardInterrupt):
+        prop.step(frames[3])
+    monkeypatch.undo()
+    for f in frames[3:]:  # the step that was interrupted left the stream as it was
+        assert np.array_equal(prop.step(f), reference.step(f))
+
+
+def test_interruptible_lets_every_other_error_through():
+    with pytest.raises(KeyboardInterrupt):
+        interruptible(_interrupted_kernel)()
+
+    def other():
+        raise SystemError("a bug")
+
+    with pytest.raises(SystemError, match="a bug"):
+        interruptible(other)()
+    assert interruptible(lambda x: x + 1)(1) == 2
+
+
+def test_a_second_thread_stepping_a_stream_while_it_steps_is_refused(tmp_path, monkeypatch):
+    """Two threads stepping and resetting one Propagator interleaved its steps and raised AttributeErrors, or an
+    InputError of two frame sizes that blamed the frames."""
+    frames, labels, prop = _stream(tmp_path)
+    inside, go = threading.Event(), threading.Event()
+    real = prop._classify
+
+    def held(frame):  # the first thread's step, held inside until the second thread has tried
+        inside.set()
+        assert go.wait(60)
+        return real(frame)
+
+    monkeypatch.setattr(prop, "_classify", held)
+    done: list = []
+    first = threading.Thread(target=lambda: done.append(prop.step(frames[1])))
+    first.start()
+    assert inside.wait(60)
+    for call in (lambda: prop.step(frames[2]), lambda: prop.reset(frames[0], labels)):
+        with pytest.raises(InputError, match=r"called while another thread's call on the same Propagator runs"):
+            call()
+    go.set()
+    first.join()
+    monkeypatch.undo()
+    assert len(done) == 1 and prop.last.frame == 1
+    prop.step(frames[2])  # the stream's own thread goes on
+    assert prop.last.frame == 2
+
+
+def test_a_copy_of_a_stream_is_a_fork(tmp_path):
+    """copy.copy shared the state a step changes in place: stepping the copy changed the original's next labels."""
+    frames, _, prop = _stream(tmp_path)
+    _, _, reference = _stream(tmp_path / "b")
+    for f in frames[1:3]:
+        prop.step(f)
+        reference.step(f)
+    fork = copy.copy(prop)
+    for f in frames[3:]:
+        fork.step(f)
+    kept = pickle.loads(pickle.dumps(prop))  # and pickled: a key-anchored stream's prepared key frame failed both
+    labels = reference.step(frames[3])
+    assert np.array_equal(prop.step(frames[3]), labels) and np.array_equal(kept.step(frames[3]), labels)
+
+
+def test_a_weight_the_confidence_was_not_calibrated_at_warns(tmp_path):
+    with pytest.warns(UncalibratedWarning, match=r"weight=20\): the confidence and the predicted error are calibrated at weight 2"):
+        _stream(tmp_path / "a", weight=20.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UncalibratedWarning)
+        _stream(tmp_path / "b")  # the default weight
+        _stream(tmp_path / "c", weight=20.0, trust=None)  # no confidence
+
+
+def test_pcreg_run_with_another_weight_says_so_once(tmp_path, capsys):
+    from pcreg.cli import main
+
+    folder, key = drifting_frames(tmp_path / "frames", n=4)
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(tmp_path / "out"), "--weight", "20"]) == 0
+    said = capsys.readouterr()
+    assert said.out.count("(the confidence is calibrated at the default --weight 2: at 20 it and the predicted error") == 1, said
+    assert "UncalibratedWarning" not in said.err and "UncalibratedWarning" not in said.out
+
+
+def test_two_refusals_say_what_they_mean(tmp_path):
+    """``frame must be in >= 0``; float labels of CamVid's classes refused naming ground and obstacle."""
+    from pcreg.classes import CAMVID11
+
+    frames, labels, prop = _stream(tmp_path)
+    with pytest.raises(InputError, match=r"^frame must be >= 0, got -1$"):
+        prop.resume(-1, None)
+    with pytest.raises(InputError, match=r"^labels must be integers \(the ids of camvid11\), got float32$"):
+        Propagator.from_key_frame(frames[0], labels.astype(np.float32), classes=CAMVID11)

@@ -32,7 +32,7 @@ if TYPE_CHECKING:
     from ..registration.dense import DenseOptions, DenseReference
 
 __all__ = ["DenseStep", "Carry", "ChainCarry", "chain_after", "STREAM_DENSE", "Estimate", "StreamMotion", "motion_model", "GlobalEstimator", "DenseEstimator",
-           "FlowEstimator", "stream_motion", "pair_estimator"]
+           "FlowEstimator", "stream_motion", "pair_estimator", "check_stream_options"]
 
 
 @dataclass(frozen=True)
@@ -407,3 +407,29 @@ def motion_model(model) -> tuple[str, str | None]:
     if not isinstance(model, str) or model not in ("dense", "flow") + MODELS:
         raise InputError(f"unknown model {short_repr(model)}; choose dense, flow or one of {', '.join(MODELS)}")
     return model, None
+
+
+def check_stream_options(weight, calibrated_at: float, fusion, register, dense, trust, learning) -> None:
+    """Refuse a :class:`pcreg.Propagator`'s options of the wrong kind (:class:`~pcreg.errors.InputError`), and warn
+    (:class:`~pcreg.errors.UncalibratedWarning`) of a ``weight`` other than ``calibrated_at`` (the stream's, at which its
+    confidence's coefficients were fitted), when it has a confidence (a ``trust`` rule)."""
+    import warnings
+
+    from ..classification.fusion import MAX_WEIGHT, FusionConfig
+    from ..errors import UncalibratedWarning, outside_pcreg
+    from ..validation import check_float
+    from .learning import Learning
+    from .trust import TrustRule
+
+    weight = check_float(weight, "weight", lo=0, hi=MAX_WEIGHT)
+    for what, value, kind, name in (("fusion", fusion, FusionConfig, "pcreg.classification.fusion.FusionConfig"),
+                                    ("register", register, RegisterConfig, "pcreg.RegisterConfig"),
+                                    ("dense", dense, DenseStep, "pcreg.pipeline.stream.DenseStep"),
+                                    ("trust", trust, TrustRule, "pcreg.pipeline.trust.TrustRule or None"),
+                                    ("learning", learning, Learning, "pcreg.pipeline.learning.Learning or None")):
+        if not (isinstance(value, kind) or (value is None and what in ("register", "trust", "learning"))):
+            raise InputError(f"{what} must be a {name}")
+    if trust is not None and weight != calibrated_at:
+        warnings.warn(UncalibratedWarning(f"Propagator(weight={weight:g}): the confidence and the predicted error are "
+                                          f"calibrated at weight {calibrated_at:g}; at another they read surer, or less "
+                                          "sure, than the labels are"), stacklevel=outside_pcreg())

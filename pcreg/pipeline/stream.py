@@ -81,7 +81,6 @@ Why the defaults (measured on CamVid clips, first frame as the key frame; docs/r
 from __future__ import annotations
 
 import time
-import warnings
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Callable
 
@@ -91,17 +90,17 @@ from .._calls import one_caller
 from .._threads import alongside
 from .bars import Bars
 from ..classification.features import DEFAULT_FEATURES
-from ..classification.fusion import MAX_WEIGHT, FusionConfig, label_prior, prior_log_odds
+from ..classification.fusion import FusionConfig, label_prior, prior_log_odds
 from .cuts import Scene, SceneCheck
 from .report import PriorTerms, StepReport
-from .estimators import STREAM_DENSE, Carry, ChainCarry, chain_after, DenseStep, FlowEstimator, StreamMotion, motion_model, stream_motion
+from .estimators import STREAM_DENSE, Carry, ChainCarry, chain_after, check_stream_options, DenseStep, FlowEstimator, StreamMotion, motion_model, stream_motion
 from .learning import STREAM_LEARNING, Learner, Learning, learns
 from .multiclass import CLASS_ANCHOR, CLASS_PRIOR_SIGMA, CLASS_WEIGHT_SHARE, ClassRead, fused_class_labels, class_prior_maps, class_priors, prior_log_probs
 from .prior import class_prior, fused_labels, fused_log_odds, pixel_weight, prior_on_moving
 from .trust import CLASS_TRUST, STREAM_TRUST, Trusted, TrustedKey, TrustRule, least_confident
 from .working import WorkingSize
 from ..classes.keys import binary_table, check_key_classes, check_labels, lagr_ids
-from ..errors import InputError, UncalibratedWarning, outside_pcreg
+from ..errors import InputError
 from ..frame import PreparedFrame
 from ..registration.config import RegisterConfig
 from ..registration.flow import DIS_MIN_SIDE
@@ -208,17 +207,7 @@ class Propagator:
         model, preset = motion_model(model)
         if anchor is not None and (not isinstance(anchor, str) or anchor not in ANCHORS):
             raise InputError(f"unknown anchor {short_repr(anchor)}; choose one of {', '.join(ANCHORS)}")
-        check_float(weight, "weight", lo=0, hi=MAX_WEIGHT)
-        if not isinstance(fusion, FusionConfig):
-            raise InputError("fusion must be a pcreg.classification.fusion.FusionConfig")
-        if register is not None and not isinstance(register, RegisterConfig):
-            raise InputError("register must be a pcreg.RegisterConfig")
-        if not isinstance(dense, DenseStep):
-            raise InputError("dense must be a pcreg.pipeline.stream.DenseStep")
-        if trust is not None and not isinstance(trust, TrustRule):
-            raise InputError("trust must be a pcreg.pipeline.trust.TrustRule or None")
-        if learning is not None and not isinstance(learning, Learning):
-            raise InputError("learning must be a pcreg.pipeline.learning.Learning or None")
+        check_stream_options(weight, STREAM_WEIGHT, fusion, register, dense, trust, learning)
         self.classifier = classifier
         self._nb = nb  # what the step runs: ``classifier``, or it in lagr's ids
         self.model = model
@@ -236,10 +225,6 @@ class Propagator:
         self.preset = preset  # a flow's DIS preset (None for the other models)
         self._estimator: StreamMotion = stream_motion(model, preset, self.config, dense, self._dense_options)
         self.weight = float(weight)
-        if trust is not None and self.weight != STREAM_WEIGHT:  # the confidence's coefficients were fitted at it
-            warnings.warn(UncalibratedWarning(f"Propagator(weight={self.weight:g}): the confidence and the predicted error are "
-                                              f"calibrated at weight {STREAM_WEIGHT:g}; at another they read surer, or less "
-                                              "sure, than the labels are"), stacklevel=outside_pcreg())
         # K classes (any but ground and obstacle): the step of :mod:`pcreg.pipeline.multiclass`, its priors at
         # their share of the weight, and the stream's trust rule as it reads many classes
         self._classes = None if binary else np.asarray(classes, np.uint8)

@@ -18,7 +18,7 @@ from typing import Callable, TypeVar
 
 from .errors import InputError
 
-__all__ = ["interruptible", "one_caller"]
+__all__ = ["interruptible", "one_caller", "state_without_caller"]
 
 F = TypeVar("F", bound=Callable)
 
@@ -49,17 +49,28 @@ def one_caller(method: F) -> F:
 
     @functools.wraps(method)
     def call(self, *args, **kwargs):
-        me, held = threading.get_ident(), self.__dict__
-        first = CALLER not in held  # not a call inside this thread's own
-        holder = held.setdefault(CALLER, me)  # atomic under the GIL: the first thread in holds it
-        if holder != me:
+        me = threading.get_ident()
+        token = (me, object())  # this call's own: whether it put the mark in is told by the mark itself
+        holder = self.__dict__.setdefault(CALLER, token)  # atomic under the GIL: the first call in holds it
+        if holder is not token and holder[0] != me:
             raise InputError(f"{type(self).__name__}.{method.__name__} called while another thread's call on the same "
                              f"{type(self).__name__} runs: a stream's steps follow each other; use one per thread, "
                              "or call it from one thread (or under a lock)")
         try:
             return run(self, *args, **kwargs)
         finally:
-            if first:
-                self.__dict__.pop(CALLER, None)  # the object's dict now (a refused reset puts its old one back)
+            if holder is token and self.__dict__.get(CALLER) is token:  # the object's dict now (a refused reset puts its old one back)
+                del self.__dict__[CALLER]
 
     return call  # type: ignore[return-value]
+
+
+def state_without_caller(obj) -> dict:
+    """``obj``'s attributes to copy or pickle (its ``__getstate__``), without the mark of a call running on it; refused
+    while another thread's call runs on it (a copy of a stream half-way through a step)."""
+    state = dict(obj.__dict__)
+    holder = state.pop(CALLER, None)
+    if holder is not None and holder[0] != threading.get_ident():
+        raise InputError(f"a {type(obj).__name__} copied or pickled while another thread's call on it runs: copy it "
+                         "between its steps")
+    return state

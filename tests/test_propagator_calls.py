@@ -85,10 +85,13 @@ def test_a_second_thread_stepping_a_stream_while_it_steps_is_refused(tmp_path, m
     for call in (lambda: prop.step(frames[2]), lambda: prop.reset(frames[0], labels)):
         with pytest.raises(InputError, match=r"called while another thread's call on the same Propagator runs"):
             call()
+    for fork in (copy.copy, pickle.dumps):  # a fork of half a step, which also carried the running call's mark
+        with pytest.raises(InputError, match=r"copied or pickled while another thread's call on it runs"):
+            fork(prop)
     go.set()
     first.join()
     monkeypatch.undo()
-    assert len(done) == 1 and prop.last.frame == 1
+    assert len(done) == 1 and prop.last.frame == 1 and "_pcreg_caller" not in prop.__dict__
     prop.step(frames[2])  # the stream's own thread goes on
     assert prop.last.frame == 2
 
@@ -125,6 +128,8 @@ def test_pcreg_run_with_another_weight_says_so_once(tmp_path, capsys):
     said = capsys.readouterr()
     assert said.out.count("(the confidence is calibrated at the default --weight 2: at 20 it and the predicted error") == 1, said
     assert "UncalibratedWarning" not in said.err and "UncalibratedWarning" not in said.out
+    # the command's silence is its own: it left the process's filters set, and a later Propagator warned nothing
+    assert not any(f[2] is UncalibratedWarning for f in warnings.filters)
 
 
 def test_two_refusals_say_what_they_mean(tmp_path):

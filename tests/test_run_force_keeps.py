@@ -186,3 +186,27 @@ def test_a_run_killed_while_it_moved_the_earlier_run_aside_is_put_back_whole_by_
     (folder / "f3.png").write_bytes(b"not a picture")
     assert main([*run, "--force"]) == 2
     assert _contents(out) == earlier and not (out / EARLIER).exists()
+
+
+def test_a_label_png_written_before_its_step_line_goes_with_the_run_that_stopped(tmp_path, monkeypatch, capsys):
+    """A run started over that stopped between a frame's label PNG and its step line (its confidence map could not be
+    written) left that PNG beside the earlier run put back, which never had the frame, and said "as it was"."""
+    import pcreg.runs.run as run_module
+    from pcreg.errors import OutputError
+
+    folder, key = drifting_frames(tmp_path / "frames", n=6)
+    out = tmp_path / "out"
+    run = ["run", str(folder), "--labels", str(key), "--out", str(out)]
+    assert main([*run, "--stop", "3"]) == 0
+    earlier = _contents(out)
+    real = run_module.write_confidence
+
+    def full(path, confidence):
+        if path.name == "f4.png":
+            raise OutputError(f"cannot write {path}: No space left on device")
+        real(path, confidence)
+
+    monkeypatch.setattr(run_module, "write_confidence", full)
+    assert main([*run, "--force", "--confidence"]) == 2
+    assert f"{out} holds the earlier run again, as it was" in one_line_errors(capsys)[-1]
+    assert _contents(out) == earlier and not (out / EARLIER).exists()

@@ -93,10 +93,11 @@ def run(args: argparse.Namespace) -> int:
                          Selection(args.start, args.stop, args.every), LabelCoding(args.classes, args.mapping),
                          truth=None if args.truth is None else Path(args.truth), confidence=args.confidence,
                          suggest=args.suggest, force=args.force, record=args.record, record_raw=args.record_raw)
-    if config.weight != STREAM_WEIGHT:  # the closing message says it, beside the predicted error, not every stream
-        import warnings
+    import warnings
 
-        from ..errors import UncalibratedWarning
+    from ..errors import UncalibratedWarning
 
-        warnings.filterwarnings("ignore", category=UncalibratedWarning)
-    return Run.label(request)
+    with warnings.catch_warnings():  # the closing message says it, beside the predicted error, not every stream
+        if config.weight != STREAM_WEIGHT:
+            warnings.filterwarnings("ignore", category=UncalibratedWarning)
+        return Run.label(request)

@@ -74,7 +74,7 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from .._calls import one_caller
+from .._calls import one_caller, state_without_caller
 from ..errors import InputError
 from ..frame import PreparedFrame
 from .bars import Bars, kept_between
@@ -382,6 +382,16 @@ class ObjectFollower:
         follower.reset(key, lab)  # what the follower cannot take refused first
         follower.classifier = fit_classifier([Frame(key.rgb, lab, "key")])
         return follower
+
+    def __getstate__(self) -> dict:
+        """What a copy or a pickle holds: every attribute but the mark of a call running (:func:`~pcreg._calls.state_without_caller`)."""
+        return state_without_caller(self)
+
+    def __copy__(self) -> "ObjectFollower":
+        """A fork of the follower: :func:`copy.deepcopy` (a shallow copy would share what its steps change in place)."""
+        import copy
+
+        return copy.deepcopy(self)
 
     @one_caller
     def reset(self, image, labels: np.ndarray) -> None:

@@ -86,7 +86,7 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
-from .._calls import one_caller
+from .._calls import one_caller, state_without_caller
 from .._threads import alongside
 from .bars import Bars
 from ..classification.features import DEFAULT_FEATURES
@@ -541,6 +541,10 @@ class Propagator:
         self._carry = carry if self.warm_starts else None
         if self._key_scene is not None:
             self._key_scene.restore(scene)
+
+    def __getstate__(self) -> dict:
+        """What a copy or a pickle holds: every attribute but the mark of a call running (:func:`~pcreg._calls.state_without_caller`)."""
+        return state_without_caller(self)
 
     def __copy__(self) -> "Propagator":
         """A fork of the stream: :func:`copy.deepcopy` (a shallow copy shared the state its steps change in place)."""

@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
 from ..errors import DatasetError, InputError, OutputError
-from .files import STATE
+from .files import CARRY, CONFIDENCE, HIDDEN, STATE, STEPS, SUGGEST
 
 __all__ = ["EARLIER", "Earlier"]
 
@@ -43,6 +43,7 @@ class Earlier:
         self.folder = out / EARLIER
         self.aside = False  # whether this process moved the run in ``out`` aside (its files are in :attr:`folder`)
         self.beside: list[tuple[Path, Path]] = []  # (a file elsewhere, where this process moved it aside)
+        self.present: set[str] = set()  # the names in ``out`` once the earlier run was moved aside
 
     def set_aside(self, paths: Iterable[Path]) -> None:
         """Move each of ``paths`` (files or folders in ``out``, run.json last; those not there skipped) into
@@ -70,6 +71,7 @@ class Earlier:
                                   f"{exc.strerror or exc}; the earlier run is left as it was") from None
             moved.append(path)
         self.aside = self.folder.is_dir()
+        self.present = set(os.listdir(self.out))  # what the new run begins beside: anything of a run's beyond it is its
 
     def set_aside_file(self, path: Path) -> None:
         """Move the file ``path`` (a recording the run writes again; not there: nothing) aside, beside itself."""
@@ -94,7 +96,12 @@ class Earlier:
         self.beside = []
         if not self.aside:
             return failed
-        for path in written:
+        # what the new run wrote: what its records name, and any file of a run's that was not there when it began (a
+        # frame's label PNG written before its step line, when the run stopped between the two)
+        mine = {STATE, STEPS, CARRY.format(0), CARRY.format(1), CONFIDENCE, SUGGEST, HIDDEN}
+        extra = [self.out / n for n in os.listdir(self.out) if n not in self.present and n != EARLIER
+                 and (n in mine or n.endswith((".png", ".tmp")))]
+        for path in dict.fromkeys([*written, *extra]):
             try:
                 if path.is_dir() and not path.is_symlink():
                     shutil.rmtree(path)
@@ -137,8 +144,12 @@ class Earlier:
             if not (self.aside or self.beside):
                 raise
             records, was_aside = [str(path) for path, _ in self.beside], self.aside
-            failed = self.put_back(written())
-            if type(exc) not in (InputError, OutputError, DatasetError):
+            try:
+                written_now = written()
+            except Exception:  # noqa: BLE001 - the run's own records unreadable: what was not there before goes
+                written_now = []
+            failed = self.put_back(written_now)
+            if not isinstance(exc, (InputError, OutputError, DatasetError)):
                 raise
             if failed:
                 said = f"; the earlier run could not be put back wholly: {', '.join(failed[:3])} left as they are"
@@ -146,7 +157,8 @@ class Earlier:
                 said = f"; {self.out} holds the earlier run again, as it was"
             else:
                 said = f"; {', '.join(records)} holds the earlier recording again, as it was"
-            raise type(exc)(f"{_without_going_on(exc)}{said}") from None
+            exc.args = (f"{_without_going_on(exc)}{said}", *exc.args[1:])
+            raise
         self.drop()
 
 

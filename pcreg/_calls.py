@@ -18,11 +18,12 @@ from typing import Callable, TypeVar
 
 from .errors import InputError
 
-__all__ = ["interruptible", "one_caller", "state_without_caller"]
+__all__ = ["OneStream", "interruptible", "one_caller", "state_without_caller"]
 
 F = TypeVar("F", bound=Callable)
 
-#: The attribute of an object that holds the thread running a call on it (only while one runs: never pickled).
+#: The attribute of an object that holds the mark of a call running on it, (thread id, token) (only while one runs:
+#: never copied or pickled).
 CALLER = "_pcreg_caller"
 
 
@@ -74,3 +75,18 @@ def state_without_caller(obj) -> dict:
         raise InputError(f"a {type(obj).__name__} copied or pickled while another thread's call on it runs: copy it "
                          "between its steps")
     return state
+
+
+class OneStream:
+    """What a stream (:class:`pcreg.Propagator`, :class:`~pcreg.pipeline.follow.ObjectFollower`) is copied and pickled
+    as: every attribute but the mark of a call running (:func:`state_without_caller`), and ``copy.copy`` a fork,
+    a deep copy (a shallow one shared the state its steps change in place: stepping the copy changed the original's
+    labels)."""
+
+    def __getstate__(self) -> dict:
+        return state_without_caller(self)
+
+    def __copy__(self):
+        import copy
+
+        return copy.deepcopy(self)

@@ -74,7 +74,7 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from .._calls import one_caller, state_without_caller
+from .._calls import OneStream, one_caller
 from ..errors import InputError
 from ..frame import PreparedFrame
 from .bars import Bars, kept_between
@@ -345,7 +345,7 @@ def _warp(values: np.ndarray, field: np.ndarray) -> np.ndarray:
     return cv2.remap(values, field, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
 
-class ObjectFollower:
+class ObjectFollower(OneStream):
     """Follow the key frame's object along a stream (see the module's docstring); what ``pcreg run`` steps
     with ``--follow object``, with :class:`pcreg.Propagator`'s stream interface (``reset``, ``step``,
     ``last``, ``carry``, ``resume``). ``classifier``: naive Bayes fitted on the key frame, used only to
@@ -382,16 +382,6 @@ class ObjectFollower:
         follower.reset(key, lab)  # what the follower cannot take refused first
         follower.classifier = fit_classifier([Frame(key.rgb, lab, "key")])
         return follower
-
-    def __getstate__(self) -> dict:
-        """What a copy or a pickle holds: every attribute but the mark of a call running (:func:`~pcreg._calls.state_without_caller`)."""
-        return state_without_caller(self)
-
-    def __copy__(self) -> "ObjectFollower":
-        """A fork of the follower: :func:`copy.deepcopy` (a shallow copy would share what its steps change in place)."""
-        import copy
-
-        return copy.deepcopy(self)
 
     @one_caller
     def reset(self, image, labels: np.ndarray) -> None:

@@ -86,7 +86,7 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
-from .._calls import one_caller, state_without_caller
+from .._calls import OneStream, one_caller
 from .._threads import alongside
 from .bars import Bars
 from ..classification.features import DEFAULT_FEATURES
@@ -142,7 +142,7 @@ STREAM_REGISTRATION = RegisterConfig.of(model="similarity", init="identity", min
 SCALE_ADVICE = "; choose a larger scale"
 
 
-class Propagator:
+class Propagator(OneStream):
     """Propagate a key frame's labels along a stream of frames (see the module's docstring).
 
     classifier : a fitted ground/obstacle naive Bayes (:func:`pcreg.fit_classifier` on the key frame and
@@ -541,16 +541,6 @@ class Propagator:
         self._carry = carry if self.warm_starts else None
         if self._key_scene is not None:
             self._key_scene.restore(scene)
-
-    def __getstate__(self) -> dict:
-        """What a copy or a pickle holds: every attribute but the mark of a call running (:func:`~pcreg._calls.state_without_caller`)."""
-        return state_without_caller(self)
-
-    def __copy__(self) -> "Propagator":
-        """A fork of the stream: :func:`copy.deepcopy` (a shallow copy shared the state its steps change in place)."""
-        import copy
-
-        return copy.deepcopy(self)
 
     @property
     def working_size(self) -> WorkingSize | None:

@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
 from ..errors import DatasetError, InputError, OutputError
-from .files import CARRY, CONFIDENCE, HIDDEN, STATE, STEPS, SUGGEST
+from .files import RUN_FILES, STATE
 
 __all__ = ["EARLIER", "Earlier"]
 
@@ -98,9 +98,8 @@ class Earlier:
             return failed
         # what the new run wrote: what its records name, and any file of a run's that was not there when it began (a
         # frame's label PNG written before its step line, when the run stopped between the two)
-        mine = {STATE, STEPS, CARRY.format(0), CARRY.format(1), CONFIDENCE, SUGGEST, HIDDEN}
         extra = [self.out / n for n in os.listdir(self.out) if n not in self.present and n != EARLIER
-                 and (n in mine or n.endswith((".png", ".tmp")))]
+                 and (n in RUN_FILES or n.endswith((".png", ".tmp")))]
         for path in dict.fromkeys([*written, *extra]):
             try:
                 if path.is_dir() and not path.is_symlink():

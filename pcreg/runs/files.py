@@ -32,7 +32,8 @@ from ..errors import InputError, OutputError
 from ..cloud_files import NPY_HEADER_ERRORS
 from ..formats import loads_json
 
-__all__ = ["StepTruth", "finite_figure", "step_class_iou", "STATE", "STEPS", "CARRY", "CONFIDENCE", "SUGGEST", "HIDDEN", "label_digest", "UNREADABLE_CARRY", "write_labels",
+__all__ = ["StepTruth", "finite_figure", "step_class_iou", "STATE", "STEPS", "CARRY", "CONFIDENCE", "SUGGEST", "HIDDEN", "RUN_FILES",
+           "label_digest", "UNREADABLE_CARRY", "write_labels",
            "labels_written", "labels_of_frames_gone", "write_confidence", "write_grey", "confidence_png",
            "append_step", "step_lines", "parse_steps", "counted_steps", "write_carry", "read_carry", "label_file_problem", "read_confidence", "check_labelled",
            "write_suggestions", "read_suggestions", "has_confidence", "SUMMARY_FIELDS"]
@@ -49,6 +50,8 @@ CONFIDENCE = "confidence"
 SUGGEST = "suggest.txt"
 #: The hidden folder of a run from a folder of key frames that holds what a stretch's passes hand on.
 HIDDEN = ".keys"
+#: The run's own files and folders in ``OUT`` beside its label PNGs (what a run started over moves aside).
+RUN_FILES: tuple[str, ...] = (CARRY.format(0), CARRY.format(1), HIDDEN, CONFIDENCE, SUGGEST, STEPS, STATE)
 #: What reading a damaged carry file raises (a zip archive of .npy members).
 UNREADABLE_CARRY: tuple[type[BaseException], ...] = (*NPY_HEADER_ERRORS, KeyError, EOFError, zipfile.BadZipFile,
                                                      zlib.error)

@@ -51,7 +51,7 @@ from ..outputs import atomic_file
 from .earlier import Earlier
 from .edited import (check_key_files, check_same_frame, check_same_frames, check_same_inputs, check_same_truth,
                      frame_bytes, frame_stamp, key_contents)
-from .files import (CARRY, CONFIDENCE, HIDDEN, STEPS, SUGGEST, SUMMARY_FIELDS, append_step, check_labelled, label_digest,
+from .files import (CARRY, CONFIDENCE, HIDDEN, RUN_FILES, STEPS, SUGGEST, SUMMARY_FIELDS, append_step, check_labelled, label_digest,
                     label_file_problem, labels_of_frames_gone, labels_written, parse_steps, read_carry, step_lines, write_carry, write_confidence, write_labels)
 from .records import check_record_path, check_recording, name_recording, nothing_to_record, run_recording
 from .state import FORMAT, STATE, inputs_placed, named_otherwise, open_state, read_state, run_frames, run_inputs, write_state
@@ -347,7 +347,7 @@ class Run:
         from ..formats import resolved
 
         kept = {resolved(p) for p in run_inputs(self.identity)}
-        names = [self.out / n for n in (CARRY.format(0), CARRY.format(1), HIDDEN, CONFIDENCE, SUGGEST, STEPS, STATE)]
+        names = [self.out / n for n in RUN_FILES]
         return [f for f in sorted(labels_written(self.out)) + names if resolved(f) not in kept and resolved(f).parent not in kept]
 
     def _remove_partial_writes(self) -> None:

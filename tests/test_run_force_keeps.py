@@ -188,6 +188,18 @@ def test_a_run_killed_while_it_moved_the_earlier_run_aside_is_put_back_whole_by_
     assert _contents(out) == earlier and not (out / EARLIER).exists()
 
 
+def test_a_run_killed_while_it_moved_the_earlier_run_aside_then_resumed_names_where_its_labels_are(tmp_path, capsys):
+    """Resumed without --force after such a kill, the run was refused as "f1.png is missing", and no word of
+    .earlier-run, where f1.png was."""
+    run, folder, out, earlier = _finished_run(tmp_path)
+    (out / EARLIER).mkdir()
+    (out / "f1.png").rename(out / EARLIER / "f1.png")
+    assert main([*run, "--confidence"]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and f"{out / 'f1.png'} is missing (it is in {out / EARLIER}, " in err[0], err
+    assert main([*run, "--force"]) == 0 and not (out / EARLIER).exists()
+
+
 def test_a_label_png_written_before_its_step_line_goes_with_the_run_that_stopped(tmp_path, monkeypatch, capsys):
     """A run started over that stopped between a frame's label PNG and its step line (its confidence map could not be
     written) left that PNG beside the earlier run put back, which never had the frame, and said "as it was"."""

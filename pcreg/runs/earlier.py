@@ -27,12 +27,9 @@ from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
 from ..errors import DatasetError, InputError, OutputError
-from .files import RUN_FILES, STATE
+from .files import EARLIER, RUN_FILES, STATE
 
 __all__ = ["EARLIER", "Earlier"]
-
-#: The folder in ``OUT`` that holds the earlier run's files while a run started over has not finished.
-EARLIER = ".earlier-run"
 
 
 class Earlier:

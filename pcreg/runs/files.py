@@ -32,7 +32,7 @@ from ..errors import InputError, OutputError
 from ..cloud_files import NPY_HEADER_ERRORS
 from ..formats import loads_json
 
-__all__ = ["StepTruth", "finite_figure", "step_class_iou", "STATE", "STEPS", "CARRY", "CONFIDENCE", "SUGGEST", "HIDDEN", "RUN_FILES",
+__all__ = ["StepTruth", "finite_figure", "step_class_iou", "STATE", "STEPS", "CARRY", "CONFIDENCE", "SUGGEST", "HIDDEN", "RUN_FILES", "EARLIER",
            "label_digest", "UNREADABLE_CARRY", "write_labels",
            "labels_written", "labels_of_frames_gone", "write_confidence", "write_grey", "confidence_png",
            "append_step", "step_lines", "parse_steps", "counted_steps", "write_carry", "read_carry", "label_file_problem", "read_confidence", "check_labelled",
@@ -52,6 +52,9 @@ SUGGEST = "suggest.txt"
 HIDDEN = ".keys"
 #: The run's own files and folders in ``OUT`` beside its label PNGs (what a run started over moves aside).
 RUN_FILES: tuple[str, ...] = (CARRY.format(0), CARRY.format(1), HIDDEN, CONFIDENCE, SUGGEST, STEPS, STATE)
+#: The folder in ``OUT`` that holds the earlier run's files while a run started over has not finished
+#: (:mod:`pcreg.runs.earlier`).
+EARLIER = ".earlier-run"
 #: What reading a damaged carry file raises (a zip archive of .npy members).
 UNREADABLE_CARRY: tuple[type[BaseException], ...] = (*NPY_HEADER_ERRORS, KeyError, EOFError, zipfile.BadZipFile,
                                                      zlib.error)
@@ -425,7 +428,10 @@ def check_labelled(out: Path, stems: list[str], shape: tuple[int, int], confiden
     for path, is_confidence in named:
         problem = label_file_problem(path, shape, confidence=is_confidence)
         if problem == "missing":
-            raise OutputError(f"{path} is missing, though {out / STATE} counts that frame labelled; "
+            aside = out / EARLIER / path.relative_to(out)
+            where = (f" (it is in {out / EARLIER}, where a run started over there and killed while it moved this run "
+                     "aside left it)") if aside.is_file() else ""
+            raise OutputError(f"{path} is missing{where}, though {out / STATE} counts that frame labelled; "
                               "use --force to start over")
         if problem is not None:
             raise OutputError(f"{path}: {problem}, though {out / STATE} counts that frame labelled; "

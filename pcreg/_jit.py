@@ -105,8 +105,8 @@ CACHED = _install()
 #: before a kernel compiles with nothing in the on-disk cache for it, as after ``pip install`` or a change to a
 #: kernel source: the first registration would otherwise wait a minute or more without a word, and report that
 #: minute as its own time.
-COMPILING = ("pcreg: note: compiling pcreg's kernels for this machine, once (a minute or two; they are kept on disk "
-             "for the next runs; python -m pcreg.kernels compiles them ahead)")
+COMPILING = ("pcreg: note: compiling the kernels this command uses for this machine, once (up to a minute or two; "
+             "they are kept on disk for the next runs; python -m pcreg.kernels compiles all of them ahead)")
 
 _TOLD: list[bool] = []
 _TELLING = threading.Lock()

@@ -158,14 +158,19 @@ def read_run(folder: str | Path) -> RunLabels:
 def _check_frames(folder: Path, state: dict) -> None:
     """Refuse, as the review does (:class:`~pcreg.runs.edited.FramesAsLabelled`), a run whose frames folder, still
     there, holds frames written again since the run labelled them (re-extracted at another size, edited) or added,
-    removed or renamed: the archive is imported over the frames as they are now. A video's, or a folder that is gone
-    (the labels are all an export needs), is not read."""
+    removed or renamed: the archive is imported over the frames as they are now; so is a run whose video was written
+    over since (:func:`~pcreg.runs.video_file.check_labelled_video`). A video or folder that is gone (the labels are all
+    an export needs) is not read."""
     from .datasets.sources import open_frames
     from .runs.edited import FramesAsLabelled
     from .runs.files import counted_steps
     from .runs.state import STATE, chosen_selection, steps_counted, steps_counted_now
+    from .runs.video_file import check_labelled_video
 
     run = state["run"]
+    if isinstance(run.get("video"), str) and Path(run["video"]).is_file():  # written over since: not its frames
+        check_labelled_video(state, Path(run["video"]), folder, "export")
+        return
     source = Path(run["folder"]) if isinstance(run.get("folder"), str) and "video" not in run else None
     if source is None or not source.is_dir():
         return

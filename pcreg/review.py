@@ -146,6 +146,7 @@ def read_review(folder: str | Path) -> RunReview:
     from .runs.edited import FramesAsLabelled
     from .runs.files import STEPS, counted_steps, has_confidence
     from .runs.state import STATE, chosen_selection, read_state, run_frames, steps_counted_now
+    from .runs.video_file import check_labelled_video
 
     folder = Path(folder)
     state_path = folder / STATE
@@ -174,6 +175,8 @@ def read_review(folder: str | Path) -> RunReview:
     if not source.exists():
         raise InputError(f"{state_path}: the run's {kind} {source} is gone (the frames are read from there); moved with its project? the same "
                          f"pcreg run with the {kind}'s new path and --out {shell_word(folder)} names the new places in run.json, and goes on from what was labelled")
+    if kind == "video":  # written over since: its frames are not those labelled (a folder's are checked step by step)
+        check_labelled_video(state, source, folder, "review")
     frames = open_frames(source, selection)
     if labelled is None:  # a run from one label image labels its frames in order
         done = min(count, len(frames)) if isinstance(frames, FolderFrames) else count

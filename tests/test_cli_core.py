@@ -203,6 +203,20 @@ def test_an_image_transparent_everywhere_is_bad_input_naming_its_file(pair, tmp_
         np.testing.assert_array_equal(pcreg.load_image(tmp_path / "clear.png"), ref[:, :, ::-1])
 
 
+def test_an_image_whose_black_half_is_read_as_padding_is_refused_saying_so(pair, tmp_path):
+    """A picture half pure black (touching its border), half grey: the black half is read as padding from a warp and
+    left out, and the refusal said "no usable edges (a flat or empty image?)" of an image with a clear edge."""
+    d, _ = pair
+    step = np.zeros((120, 160, 3), np.uint8)
+    step[:, 80:] = 200
+    cv2.imwrite(str(tmp_path / "step.png"), step)
+    p = run("register", d / "ref.png", tmp_path / "step.png")
+    assert p.returncode == 3 and p.stderr.splitlines() == [
+        f"pcreg: registration refused: {tmp_path / 'step.png'}: the moving image has no usable edges: 50% of it is left "
+        "out (pure black touching its border is read as padding from a warp, a transparent pixel as no picture), and "
+        "the rest holds none"], p.stderr
+
+
 def test_a_16_bit_image_of_8_bit_values_is_refused_saying_so(pair, tmp_path):
     """A 16-bit PNG whose values lie in 0..255 reads nearly black (16 bits are scaled by 1/257, as documented):
     its refusal names the file and says its values use only the lowest 8 of its 16 bits, with their range

@@ -230,3 +230,19 @@ def test_what_the_reference_reached_run_on_is_said_as_it_came(conv, said):
     from pcreg.commands.crosscheck import _run_on
 
     assert _run_on(conv).startswith(said)
+
+
+def test_rows_whose_names_are_cut_are_told_apart_and_named_in_full_below():
+    """Two `cmd:` implementations whose commands differ after their 21st character: both rows read
+    `cmd:"/tmp/p1/work/icp...`, one agreeing and one not, and only their order told which was which."""
+    from pcreg.commands.crosscheck import format_table
+
+    a = np.random.default_rng(1).uniform(-1, 1, (300, 3))
+    out = crosscheck_implementations(a + 0.01, a, implementations=["reference", "open3d"]).to_dict()
+    rows = out["implementations"]
+    one, other = 'cmd:"/opt/tools/icp_min {source} {target}"', 'cmd:"/opt/tools/icp_min {source} {target} --wrong"'
+    rows[one], rows[other] = rows.pop("open3d"), dict(rows["reference"], agrees=False)
+    lines = format_table(out).splitlines()
+    labels = [line[:24].rstrip() for line in lines[1:4]]
+    assert labels == ["reference", 'cmd:"/opt/tools/i... [1]', 'cmd:"/opt/tools/i... [2]'], labels
+    assert lines[-2:] == [f"[1] {one}", f"[2] {other}"], lines[-2:]

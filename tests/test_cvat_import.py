@@ -525,3 +525,20 @@ def test_an_export_read_with_classes_whose_unknown_is_0_and_ids_have_gaps_keeps_
     spec.write_text(table_json(other))
     rc, err = _run(["run", frames, "--labels", export, "--classes", spec, "--out", tmp_path / "out2"], capsys)
     assert rc == 2 and "its class table disagrees with --classes" in err[0] and "'car' (64, 0, 128)" in err[0], err
+
+
+def test_classes_davis_reads_an_export_of_its_classes_and_names_itself_refusing_others(clip, tmp_path, capsys):
+    """`--classes davis` (read as `--mapping davis` reads object masks) refused every CVAT export, naming `--mapping
+    davis`, an option not given; the export's labelmap.txt is checked against the davis table now."""
+    from pcreg.classes import DAVIS
+
+    frames, ids = clip
+    stems = list(ids)
+    car = {stems[0]: np.where(ids[stems[0]] == 8, 1, 0).astype(np.uint8)}  # CamVid's car as the object
+    rc, err = _run(["run", frames, "--labels", cvat_export(tmp_path / "davis.zip", DAVIS, car), "--classes", "davis",
+                    "--out", tmp_path / "out", "--stop", "3"], capsys)
+    assert rc == 0, err
+    np.testing.assert_array_equal(read_labels(tmp_path / "out" / f"{stems[0]}.png", DAVIS), car[stems[0]])
+    rc, err = _run(["run", frames, "--labels", cvat_export(tmp_path / "two.zip", TWO, {stems[0]: TWO_LUT[ids[stems[0]]]}),
+                    "--classes", "davis", "--out", tmp_path / "out2"], capsys)
+    assert rc == 2 and len(err) == 1 and "disagrees with --classes davis's" in err[0] and "--mapping" not in err[0], err

@@ -638,7 +638,8 @@ def _many_class_run(synthetic, tmp_path, n_classes: int, key: np.ndarray):
 
 def test_an_overlay_of_a_video_that_has_since_lost_frames_is_refused(synthetic, tmp_path, capsys):
     """The overlay of a run whose video has since been cut shorter ended at the video's last frame, one line
-    saying it wrote fewer frames than the run has and nothing saying why."""
+    saying it wrote fewer frames than the run has and nothing saying why. (Written over since, it is not the video
+    the run labelled: refused as such before a frame is read.)"""
     def video(n):
         writer = cv2.VideoWriter(str(tmp_path / "clip.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 12, (160, 120))
         for f in synthetic[:n]:
@@ -651,7 +652,7 @@ def test_an_overlay_of_a_video_that_has_since_lost_frames_is_refused(synthetic, 
     video(N - 2)
     overlay = tmp_path / "overlay.mp4"
     assert pcreg_view([str(out), "--overlay", str(overlay)]) == 2
-    assert f"ends before the run's frame {N - 2:06d}" in one_line_error(capsys)
+    assert f"clip.mp4: not the video the run in {out} labelled (its size or bytes changed since" in one_line_error(capsys)
     assert not overlay.exists() and not list(tmp_path.glob(".*.tmp*"))
 
 

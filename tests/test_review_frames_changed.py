@@ -91,3 +91,30 @@ def test_export_refuses_frames_changed_since_as_the_review_does(tmp_path, synthe
     said = (f"{folder / 'f2.png'}: changed since the run in {out} labelled it" if change == "smaller" else
             f"{folder}: holds f2b.png as frame 2, which the run in {out} labelled as f2.png")
     assert said in err[0] and ("to export it" in err[0] or change != "smaller"), err
+
+
+@pytest.mark.parametrize("then", ["appended", "written over"])
+def test_a_video_written_over_since_the_run_is_refused_by_the_review_and_the_export(tmp_path, capsys, then):
+    """A run's video replaced by another of its size and length (the clip reversed): `pcreg run` refused to resume on it,
+    while `pcreg view` served its frames under the old labels and `pcreg export` wrote them for the new frames, exit 0,
+    without a word. Bytes appended (a recording still growing) are the same video: both go on."""
+    from _runs import video_run, write_video
+
+    video, out = video_run(tmp_path, frames=4)
+    if then == "appended":
+        with open(video, "ab") as fh:
+            fh.write(b"\0" * 64)
+    else:
+        write_video(video, pcreg.synthetic("syn1a", 4, 0, width=96, height=72)[::-1])
+    capsys.readouterr()
+    codes = [main(["view", str(out), "--overlay", str(tmp_path / "o.mp4")]),
+             main(["export", str(out), "--to", str(tmp_path / "x.zip")])]
+    err = capsys.readouterr().err
+    if then == "appended":
+        assert codes == [0, 0], err
+        return
+    assert codes == [2, 2] and not (tmp_path / "o.mp4").exists() and not (tmp_path / "x.zip").exists()
+    said = f"{video}: not the video the run in {out} labelled (its size or bytes changed since"
+    assert [line.startswith(f"pcreg: error: {said}") for line in err.splitlines() if "error" in line] == [True, True], err
+    with pytest.raises(InputError, match="label it again .* to review it"):
+        read_review(out)

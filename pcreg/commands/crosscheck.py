@@ -268,8 +268,9 @@ def format_table(out: dict) -> str:
 
     lines = [f"{'implementation':24s} {'comparability':12s} {'iter':>5s} {'fitness':>8s} {'rmse':>9s} "
              f"{'rot deg':>9s} {'centroid':>9s} {'rel':>9s} {'agrees':>6s} {'s':>6s}"]
+    cut = [name for name in out["implementations"] if len(name) > 24]  # each named in full below the table
     for name, r in out["implementations"].items():
-        label = name if len(name) <= 24 else name[:21] + "..."
+        label = name if len(name) <= 24 else f"{name[:17]}... [{cut.index(name) + 1}]"
         if r["error"]:
             lines.append(f"{label:24s} {r['comparability']:12s} {r['status']}: {r['error']}")
             continue
@@ -303,6 +304,7 @@ def format_table(out: dict) -> str:
                  "with the reference run to convergence)")
     if s.get("unconstrained"):
         lines.append(f"unconstrained: {s['unconstrained']}; no row's pose can be trusted")
+    lines += [f"[{i}] {name}" for i, name in enumerate(cut, 1)]
     return "\n".join(lines)
 
 

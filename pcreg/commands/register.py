@@ -29,7 +29,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="finish: none (default) or point_to_line (reference backend only), which removes edge-sampling bias")
     p.add_argument("--min-inlier-ratio", type=arg_float(0, 1), default=None, metavar="R",
                    help="refuse (exit 3) below this share of tight inliers (default: the library's, 0.15); "
-                        "0 turns the test off")
+                        "0 turns the test off, and the checks that mark or refuse a result with it")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", metavar="WARPED.png", help="write the moving image warped onto the reference grid")
     add_record_arguments(p)

@@ -374,8 +374,11 @@ def _pyramids(ref_img: np.ndarray, mov_img: np.ndarray, reference_pyramid: Image
             out.append(CloudPyramid.from_detections(image, kept, levels=levels, max_points=n, seed=s))
     for name, pyramid, image in zip(("reference", "moving"), out, given):
         if len(pyramid[0]) < 3:
-            dark = low_bits_note(image)
-            raise RegistrationError(f"the {name} image has no usable edges" + (f": {dark}" if dark else " (a flat or empty image?)"))
+            left_out = 1.0 - float(np.mean(pyramid.valid))
+            why = low_bits_note(image) or (f"{100 * left_out:.0f}% of it is left out (pure black touching its border is "
+                                           "read as padding from a warp, a transparent pixel as no picture), and the "
+                                           "rest holds none" if left_out >= 0.05 else None)
+            raise RegistrationError(f"the {name} image has no usable edges" + (f": {why}" if why else " (a flat or empty image?)"))
     return out[0], out[1]
 
 

@@ -168,7 +168,7 @@ class IcpConfig:
 class PlausibilityConfig:
     """The test (:mod:`pcreg.registration.plausibility`). min_inlier_ratio : the share of moving points
     that must land within ``inlier_tolerance`` px of a reference point (:data:`DEFAULT_MIN_INLIER_RATIO`;
-    None turns the test off). model_check : whether the result is checked: a result of a model narrower than
+    None turns the test off, and the checks of ``model_check`` with it). model_check : whether the result is checked: a result of a model narrower than
     the projective one against a projective refinement of it (:func:`pcreg.registration.plausibility.model_fit`:
     the result's ``model_fit``), a projective result against the homography of SIFT matches
     (:func:`pcreg.registration.features.feature_check`: its ``features``); the streams and evaluations, whose

@@ -198,9 +198,10 @@ def _key_folder(request, frames, table, mapping: str, left: list[str]) -> tuple:
     with _closed_on_error((first, rest)):
         if resolved(folder) == resolved(out):
             raise InputError(f"--out {out} would overwrite the key frames' labels in {folder}; choose another folder")
-        if is_cvat_export(folder):
-            table, keys = read_cvat_keys(folder, frames, first.image.shape[:2], request.coding.classes, mapping=mapping,
-                                         left_out=left)
+        if is_cvat_export(folder):  # --classes davis (read as --mapping davis): the export's labelmap.txt checked against it
+            implied = mapping == "davis" and request.coding.classes == "davis"
+            table, keys = read_cvat_keys(folder, frames, first.image.shape[:2], request.coding.classes,
+                                         mapping="none" if implied else mapping, left_out=left)
         else:
             keys = read_key_labels(folder, frames, mapping, first.image.shape[:2], table, left_out=left)
     return table, keys, (first, rest)

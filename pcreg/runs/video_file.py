@@ -23,7 +23,8 @@ from typing import Generator, Iterator
 
 from ..errors import OutputError
 
-__all__ = ["MIB", "SPREAD", "BLOCK", "fingerprint", "keep_video", "check_kept", "labelled_to_end", "mark_end", "video_file_problem"]
+__all__ = ["MIB", "SPREAD", "BLOCK", "fingerprint", "keep_video", "check_kept", "labelled_to_end", "mark_end", "video_file_problem",
+           "check_labelled_video"]
 
 #: How much of each end of the file its fingerprint reads.
 MIB = 1 << 20
@@ -108,6 +109,25 @@ def check_kept(state: dict, frames, out: Path) -> None:
         return
     raise OutputError(f"{frames.path}: written again while the run in {out} labelled it ({before['size']} bytes when "
                       f"it began, {now['size']} now): its labels may be of two videos; use --force to start over")
+
+
+def check_labelled_video(state: dict, path: Path, out: Path, doing: str) -> None:
+    """For a reader of the run in ``out`` over the video at ``path`` (``state`` its run.json): an
+    :class:`~pcreg.errors.InputError` when the file is no longer the one the run labelled nor it with bytes appended
+    (written over since: another video, or the same re-encoded), whose frames its labels are not of. ``doing``: what the
+    message says to label it again for (``"review"``, ``"export"``). A run.json without ``video_file`` (from an earlier
+    pcreg) is not checked."""
+    from ..errors import InputError
+
+    before = state.get("video_file")
+    if before is None:
+        return
+    now = fingerprint(path)
+    if _same_bytes(before, now) or _appended(before, path, now):
+        return
+    raise InputError(f"{path}: not the video the run in {out} labelled (its size or bytes changed since: {before['size']} "
+                     f"bytes then, {now['size']} now), so its labels are not of these frames; label it again (pcreg run "
+                     f"... --force) to {doing} it")
 
 
 def mark_end(state: dict, frames, out: Path) -> None:

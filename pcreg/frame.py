@@ -51,6 +51,16 @@ class PreparedFrame:
     def shape(self) -> tuple[int, int]:
         return self.rgb.shape[:2]
 
+    def check_key(self, name: str = "the key frame") -> "PreparedFrame":
+        """Itself, or an :class:`~pcreg.errors.InputError` naming it ``name`` when every pixel is one colour (a black
+        frame before a video starts, a blank capture): a key frame so holds nothing to tell its classes apart by, or
+        to follow."""
+        first = self.rgb[0, 0]
+        if (self.rgb == first).all():
+            raise InputError(f"{name} is one colour everywhere {tuple(int(v) for v in first)}: as a key frame it "
+                             "holds nothing to tell its classes apart by, or to follow; choose one that shows the scene")
+        return self
+
     def copy(self) -> "PreparedFrame":
         """The frame over a copy of its own: for a frame kept beyond the call that prepared it (a stream's
         key frame), whose caller may write the next frame into the same array (a camera's or a decoder's

@@ -225,3 +225,27 @@ def test_a_clip_whose_labels_folder_is_named_otherwise_is_refused_naming_it(tmp_
     (line,) = one_line_errors(capsys)
     assert line.startswith(f"pcreg: error: {clip / 'labels'}: no such folder") and "if LabelsColor/ holds them" in line
     assert not out.exists()
+
+
+@pytest.mark.parametrize("which", ["the clip", "a frame"])
+def test_names_that_are_not_utf8_are_refused_before_the_evaluation_runs(tmp_path, capsys, which):
+    """A clip folder or frames named in Latin-1 (a zip made on Windows, unpacked on Linux): the evaluation ran every
+    unit, then failed writing its report (a bug, exit 1; no results.json), and again on every rerun."""
+    import os
+
+    import pcreg
+
+    clip = tmp_path / "data" / os.fsdecode(b"caf\xe9" if which == "the clip" else b"clip")
+    (clip / "images").mkdir(parents=True)
+    (clip / "labels").mkdir()
+    for i, f in enumerate(pcreg.synthetic("syn1a", 3, 0, width=64, height=48)):
+        name = os.fsdecode(b"f%d%s.png" % (i, b"\xff" if which == "a frame" else b""))
+        (clip / "images" / name).write_bytes(cv2.imencode(".png", f.image[:, :, ::-1])[1].tobytes())  # OpenCV takes
+        (clip / "labels" / name).write_bytes(cv2.imencode(".png", f.labels)[1].tobytes())  # no such path
+    out = tmp_path / "out"
+    assert main(["evaluate", "stream", "--data", f"folder:{tmp_path / 'data'}", "--methods", "plain",
+                 "--out", str(out)]) == 2
+    shown = r"'caf\xe9'" if which == "the clip" else r"a frame of clip named 'f0\xff'"
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and shown in err[0] and "not UTF-8" in err[0], err
+    assert not (out / "units").exists() or not any((out / "units").rglob("*.json"))

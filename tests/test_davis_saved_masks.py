@@ -257,3 +257,20 @@ def test_a_mask_smoothed_wider_than_its_edge_is_refused_saying_so(tmp_path, caps
     assert main(["run", str(seq / "images"), "--labels", str(key), "--out", str(tmp_path / "out")]) == 2
     (line,) = one_line_errors(capsys)
     assert "is not a class id" in line and f"it holds values rising gradually from 0 to {peak}" in line, line
+
+
+@pytest.mark.parametrize("under", ["the object's colour", "black"])
+def test_a_mask_with_transparent_pixels_is_refused_as_labels_of_two_classes_are(tmp_path, under):
+    """An object mask with an alpha channel: an area erased in an editor keeps its colour under alpha 0, and was read
+    as object (with an object of white under it, the whole area; with black, a mask read right by chance), where
+    labels of two classes with transparent pixels are refused."""
+    mask = np.zeros((48, 64, 4), np.uint8)
+    mask[10:30, 10:40] = (255, 255, 255, 255)
+    mask[:, :, 3] = np.where(mask[:, :, 0] > 0, 255, 0)
+    mask[30:40, 10:40] = (255, 255, 255, 0) if under == "the object's colour" else (0, 0, 0, 0)
+    cv2.imwrite(str(tmp_path / "m.png"), mask)
+    with pytest.raises(InputError, match=r"m\.png: an object mask with transparent pixels .* flatten it onto black"):
+        read_key_labels(tmp_path / "m.png", DAVIS, "davis")
+    mask[:, :, 3] = 255  # opaque: read by its colours
+    cv2.imwrite(str(tmp_path / "m.png"), mask)
+    assert read_key_labels(tmp_path / "m.png", DAVIS, "davis")[20, 20] == 1

@@ -141,3 +141,79 @@ def test_two_refusals_say_what_they_mean(tmp_path):
         prop.resume(-1, None)
     with pytest.raises(InputError, match=r"^labels must be integers \(the ids of camvid11\), got float32$"):
         Propagator.from_key_frame(frames[0], labels.astype(np.float32), classes=CAMVID11)
+
+
+@pytest.mark.parametrize("where", ["its report", "a reset"])
+def test_an_object_follower_interrupted_late_in_a_step_or_a_reset_is_left_as_it_was(shared_data, monkeypatch, where):
+    """Ctrl-C while the follower made its step's report came after it had taken the step's carry and counted the
+    frame: the frame given again was stepped twice (its report numbered 6 for the fifth frame, and the labels after
+    it differed from an uninterrupted stream's). A reset interrupted while it made the key frame's colour table
+    left the new key's object share beside the old key's colours."""
+    import cv2
+
+    import pcreg.pipeline.follow as follow
+    import pcreg.pipeline.trust as trust
+    from pcreg.pipeline.follow import ObjectFollower
+
+    seq = shared_data / "davis" / "blackswan"
+    frames = [cv2.imread(str(seq / "images" / f"{i:05d}.jpg"))[:, :, ::-1].copy() for i in range(6)]
+    mask = (cv2.imread(str(seq / "labels" / "00000.png"), cv2.IMREAD_GRAYSCALE) > 0).astype(np.uint8)
+    clean = ObjectFollower.from_key_frame(frames[0], mask)
+    expected = [clean.step(f) for f in frames[1:]]
+    f = ObjectFollower.from_key_frame(frames[0], mask)
+    f.step(frames[1])
+    f.step(frames[2])
+    real = trust.class_predicted_iou if where == "its report" else follow._colour_table
+
+    def ctrl_c(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(trust if where == "its report" else follow, real.__name__, ctrl_c)
+    with pytest.raises(KeyboardInterrupt):
+        f.step(frames[3]) if where == "its report" else f.reset(frames[4], 1 - mask)
+    monkeypatch.undo()
+    got = [f.step(x) for x in frames[3:]]
+    assert f.last.frame == clean.last.frame == 5
+    assert all(np.array_equal(a, b) for a, b in zip(got, expected[2:]))
+
+
+def test_a_part_of_the_key_object_far_from_its_largest_is_followed(shared_data):
+    """The blackswan's key mask with a second part drawn 90x200 px far from the swan: the follower kept only the
+    largest part and those within 32 px of it, so the drawn part was dropped from frame 1 on, confidently."""
+    import cv2
+
+    from pcreg.pipeline.follow import ObjectFollower
+
+    seq = shared_data / "davis" / "blackswan"
+    frames = [cv2.imread(str(seq / "images" / f"{i:05d}.jpg"))[:, :, ::-1].copy() for i in range(3)]
+    mask = (cv2.imread(str(seq / "labels" / "00000.png"), cv2.IMREAD_GRAYSCALE) > 0).astype(np.uint8)
+    mask[380:470, 640:840] = 1
+    f = ObjectFollower.from_key_frame(frames[0], mask)
+    for frame in frames[1:]:
+        labels = f.step(frame)
+        assert (labels[380:470, 640:840] == 1).mean() > 0.8
+
+
+@pytest.mark.parametrize("keys", [False, True], ids=["one label image", "a folder of key frames"])
+def test_a_key_frame_of_one_colour_is_refused_naming_it(tmp_path, capsys, keys):
+    """A black key frame (a video's first frame before the picture starts): it was taken, and every frame after it
+    labelled from nothing (the object lost from frame 1 at a predicted error of about 54%), exit 0."""
+    import cv2
+
+    from pcreg.cli import main
+    from pcreg.pipeline.follow import ObjectFollower
+    from _runs import key_frames_of, one_line_errors
+
+    folder, key = drifting_frames(tmp_path / "frames", shape=(96, 128), n=6)
+    black = folder / ("f4.png" if keys else "f0.png")
+    cv2.imwrite(str(black), np.zeros_like(cv2.imread(str(black))))
+    labels = key_frames_of(key, tmp_path / "keys", (0, 4)) if keys else key
+    assert main(["run", str(folder), "--labels", str(labels), "--out", str(tmp_path / "out")]) == 2
+    assert one_line_errors(capsys) == [f"pcreg: error: {black} is one colour everywhere (0, 0, 0): as a key frame it "
+                                       "holds nothing to tell its classes apart by, or to follow; choose one that "
+                                       "shows the scene"]
+    mask = cv2.imread(str(key), cv2.IMREAD_UNCHANGED)
+    grey = np.full(mask.shape + (3,), 128, np.uint8)
+    for make in (lambda: Propagator.from_key_frame(grey, mask), lambda: ObjectFollower.from_key_frame(grey, mask % 2)):
+        with pytest.raises(InputError, match=r"^the key frame is one colour everywhere \(128, 128, 128\)"):
+            make()

@@ -88,7 +88,7 @@ def object_values(data: bytes, name: str, *, limit: int | None = None) -> tuple[
     several of DAVIS's palette (:func:`_colour_objects`), else its pixels that are not black as 1. A grey image
     saved in colour (three equal channels) is read as grey; a 16-bit grey one as 8-bit (:func:`_eight_bit`)."""
     from ..formats import check_image_bytes, decode_image
-    from .png import check_lossless, check_png_chunks, check_png_rows, is_palette_png, stored_grey
+    from .png import alpha_from_trns, check_lossless, check_png_chunks, check_png_rows, is_palette_png, stored_grey
 
     check_image_bytes(data, name, limit=limit)
     check_lossless(data, name)  # a JPEG's edge is values 1, 2, ...: object pixels around the object
@@ -108,6 +108,11 @@ def object_values(data: bytes, name: str, *, limit: int | None = None) -> tuple[
     img = decode_image(data, name, limit=limit)
     if img.ndim == 2:
         img = stored_grey(data, img)  # a grey PNG of 1, 2 or 4 bits: its values, not libpng's widened ones
+    if img.ndim == 3 and img.shape[2] == 4:  # an erased area keeps its colour under alpha 0: no mask to guess at
+        if (img[:, :, 3] != np.iinfo(img.dtype).max).any() and not alpha_from_trns(data):
+            raise InputError(f"{name}: an object mask with transparent pixels (an alpha channel below its maximum); "
+                             "flatten it onto black, the background, first")
+        img = np.ascontiguousarray(img[:, :, :3])
     if img.ndim == 3 and img.dtype == np.uint8 and (img[:, :, 1:3] == img[:, :, :1]).all():
         img = img[:, :, 0]  # grey saved in colour
     if img.ndim == 3:

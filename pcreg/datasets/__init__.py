@@ -175,11 +175,28 @@ def load_dataset(spec: str, *, n_frames: int | None = None, size: tuple[int, int
     if not path.is_dir():
         raise no_folder(path)
     if kind == "davis":
-        return load_davis(path, n_frames=n_frames, split=split)
+        return _utf8_names(load_davis(path, n_frames=n_frames, split=split), path)
     out = _clips(path, kind, classes, n_frames) if kind in ("camvid", "folder") else _lagr_sets(path)
     if n_frames is not None:
         out = {k: v[: int(n_frames)] for k, v in out.items()}
-    return out
+    return _utf8_names(out, path)
+
+
+def _utf8_names(sequences: dict[str, list[Frame]], path: Path) -> dict[str, list[Frame]]:
+    """``sequences``, or an :class:`InputError` naming the first sequence or frame whose name is not UTF-8 (bytes the
+    file system gave as they were, as a Windows zip unpacked on Linux names them): the reports write every name as
+    UTF-8, and an evaluation failed on such a name once all its work was done."""
+    for seq, frames in sequences.items():
+        for name in (seq, *(f.name for f in frames)):
+            try:
+                name.encode("utf-8")
+            except UnicodeEncodeError:
+                shown = name.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+                what = "a sequence" if name == seq else f"a frame of {seq}"
+                raise InputError(f"{path}: {what} named '{shown}', not UTF-8 (bytes of another encoding, as a zip "
+                                 "made on Windows unpacks them): the reports name it in UTF-8; rename it, e.g. with "
+                                 "convmv -f latin1 -t utf8 -r --notest") from None
+    return sequences
 
 
 def _clips(path: Path, kind: str, classes, n_frames: int | None) -> dict[str, list[Frame]]:

@@ -104,7 +104,21 @@ def data_files(data) -> str | None:
     """A digest of the names, sizes and modification times of every file under a ``--data`` folder
     (``camvid:PATH`` and the like; None for synthetic data), folders linked into it followed (each once):
     finished units of data that changed since are not results of the data as it is."""
+    entries = data_listing(data)
+    if entries is None:
+        return None
+    return _digest(entries)
+
+
+def _digest(entries: list[str]) -> str:
     import hashlib
+
+    return hashlib.sha256("\n".join(entries).encode("utf-8", "surrogateescape")).hexdigest()[:16]
+
+
+def data_listing(data) -> list[str] | None:
+    """What :func:`data_files` digests: ``NAME\0SIZE\0MTIME_NS`` of every file under the ``--data`` folder, by its
+    path in it, in order (None for synthetic data)."""
     import os
 
     from ..datasets import data_folder
@@ -130,7 +144,29 @@ def data_files(data) -> str | None:
             except OSError:
                 continue
             entries.append(f"{os.path.relpath(os.path.join(folder, name), root)}\0{st.st_size}\0{st.st_mtime_ns}")
-    return hashlib.sha256("\n".join(entries).encode("utf-8", "surrogateescape")).hexdigest()[:16]
+    return entries
+
+
+def changed_files(before: list[str], now: list[str]) -> str:
+    """What differs between two :func:`data_listing` s of one folder, the first file named: ``NAME: added`` (or
+    removed, or written again: its size then and now, or its time alone), and how many more."""
+    old = {e.split("\0")[0]: e.split("\0")[1:] for e in before}
+    new = {e.split("\0")[0]: e.split("\0")[1:] for e in now}
+    differ = sorted(n for n in old.keys() | new.keys() if old.get(n) != new.get(n))
+    if not differ:
+        return "its files changed since"
+    first = differ[0]
+    if first not in old:
+        what = "added"
+    elif first not in new:
+        what = "removed"
+    elif old[first][0] != new[first][0]:
+        what = f"written again ({old[first][0]} bytes then, {new[first][0]} now)"
+    else:
+        what = "written again or touched (its time changed, not its size)"
+    shown = first.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    more = f", and {len(differ) - 1} more file(s) changed" if len(differ) > 1 else ""
+    return f"its files changed since: {shown} {what}{more}"
 
 
 class UnitStore:
@@ -144,7 +180,7 @@ class UnitStore:
     """
 
     def __init__(self, out: str | Path, config: dict, *, force: bool) -> None:
-        from ..outputs import atomic_write_json, atomic_write_text
+        from ..outputs import atomic_write_bytes, atomic_write_json
         from ..errors import OutputError
 
         self.out = Path(out)
@@ -161,9 +197,11 @@ class UnitStore:
                 old = loads_json(cfg_path.read_text())
             except (OSError, ValueError):
                 old = None
-        files = data_files(config.get("data"))
+        listing = data_listing(config.get("data"))
+        files = None if listing is None else _digest(listing)
         stamp = self.dir / DATA_FILES
-        before = stamp.read_text().strip() if stamp.is_file() else None
+        kept = stamp.read_text(encoding="utf-8", errors="surrogateescape").split("\n") if stamp.is_file() else []
+        before = kept[0].strip() if kept else None  # then the listing (a store of an earlier pcreg: the digest alone)
         if force:  # start over: the earlier units and report go (its numbers are not this configuration's)
             from .reports.files import remove_report
 
@@ -178,12 +216,13 @@ class UnitStore:
             what = "results.json" if (self.out / "results.json").exists() else "units/ holds finished units"
             raise OutputError(f"{self.out}: {what} without a readable config.json, of a configuration unknown "
                               "(use --force to replace them, or another --out)")
-        elif before is not None and files is not None and before != files and self._holds_results():
-            raise OutputError(f"{self.out} holds results of the data in {config.get('data')} as it was: its files "
-                              "changed since (use --force to replace them, or another --out)")
+        elif before is not None and listing is not None and before != files and self._holds_results():
+            what = changed_files([e for e in kept[1:] if e], listing) if len(kept) > 2 else "its files changed since"
+            raise OutputError(f"{self.out} holds results of the data in {config.get('data')} as it was: {what} "
+                              "(use --force to replace them, or another --out)")
         atomic_write_json(cfg_path, config)
-        if files is not None:
-            atomic_write_text(stamp, files + "\n")
+        if listing is not None:
+            atomic_write_bytes(stamp, ("\n".join([str(files), *listing]) + "\n").encode("utf-8", "surrogateescape"))
         self._remove_partial_writes()
 
     def _remove_partial_writes(self) -> None:

@@ -28,7 +28,9 @@ started in. Each step here, at half the frames' size (:data:`SCALE`), adds three
 A label is the sign of their sum at the frame's size (:func:`_read`): the carried terms resized
 bilinearly, plus the colour term looked up on the full-size frame, so that thin parts the working size
 blurs away (a kite's bar, a hand) keep their colour's say; then only the largest component and those
-within :data:`NEAR` px of it are kept, which drops far-off blobs of the object's colours. Its confidence
+within :data:`NEAR` px of it are kept, which drops far-off blobs of the object's colours, and those on a part of
+the key frame's object that lies farther than that from its largest, carried by the key flow (a part drawn
+there is the object's, however far; :func:`_far_parts`). Its confidence
 is a logistic of the sum's magnitude (:data:`CONFIDENCE_SLOPE`, :data:`CONFIDENCE_OFFSET`); once the
 labels hold no object (it left the frame), the colour term's alone, since the carried 'nowhere' saw nothing
 (an object that left the frame is not searched for again; the five DAVIS sequences never lose theirs).
@@ -283,9 +285,10 @@ class FollowTerms:
         return self.prior
 
 
-def _near_largest(mask: np.ndarray, reach: float) -> np.ndarray:
+def _near_largest(mask: np.ndarray, reach: float, carried: np.ndarray | None = None) -> np.ndarray:
     """(H, W) uint8: the mask's largest 8-connected component and every other component with a pixel
-    within ``reach`` px of it (the rest, far-off blobs of object-like colour, dropped)."""
+    within ``reach`` px of it, or on ``carried`` ((H, W) bool: the key frame's object carried to this frame);
+    the rest, far-off blobs of object-like colour, dropped."""
     n, parts, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     if n <= 2:
         return mask
@@ -293,8 +296,21 @@ def _near_largest(mask: np.ndarray, reach: float) -> np.ndarray:
     distance = cv2.distanceTransform((parts != largest).astype(np.uint8), cv2.DIST_L2, 3)
     keep = np.zeros(n, np.uint8)
     keep[parts[distance <= reach]] = 1
+    if carried is not None:
+        keep[parts[carried]] = 1
     keep[0] = 0
     return keep[parts]
+
+
+def _far_parts(labels: np.ndarray, size: WorkingSize) -> np.ndarray | None:
+    """(h, w) float32 at the working size: the object's share of each pixel in the key labels' parts farther than
+    :data:`NEAR` px from its largest (drawn there, so kept wherever the key flow carries them, as the labels of the
+    frames after it would drop them); None where the object is one part, or its parts lie within that reach."""
+    obj = (labels == 1).astype(np.uint8)
+    far = obj - _near_largest(obj, NEAR)
+    if not far.any():
+        return None
+    return _object_share(np.where(far > 0, 1, np.where(labels == 2, 2, 0)).astype(np.uint8), size)[1]
 
 
 def _sure(log_odds: np.ndarray) -> np.ndarray:
@@ -303,7 +319,7 @@ def _sure(log_odds: np.ndarray) -> np.ndarray:
 
 
 def _read(prior: np.ndarray, colour: np.ndarray, size: WorkingSize, *,
-          lost: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+          lost: bool = False, parts: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(labels, confidence, log_odds)`` at the frames' size from the carried terms ``prior`` (h, w) at the
     working size and the colour term ``colour`` (H, W) at the frames' size: ``L`` = the carried terms
     brought to the frames' size bilinearly plus the colour term; the labels are its sign, less the
@@ -315,7 +331,8 @@ def _read(prior: np.ndarray, colour: np.ndarray, size: WorkingSize, *,
     confidence is the colour term's alone, ``1 -`` its confidence where the colours say the other label."""
     full = size.grow(prior) + colour
     positive = (full > 0).astype(np.uint8)
-    labels = _near_largest(positive, NEAR)
+    carried = None if parts is None else size.grow(parts.astype(np.float32)) > 0.5
+    labels = _near_largest(positive, NEAR, carried)
     full = np.where(labels < positive, -full, full)
     if lost:
         agree = (colour > 0) == (labels == 1)
@@ -410,21 +427,22 @@ class ObjectFollower(OneStream):
         if not ((share <= 0.5) & (known > 0.5)).any():  # no colour of the background: its histogram is empty (0/0)
             raise InputError(f"the key frame's background ({int((lab == 0).sum())} px) covers no pixel at the size the "
                              f"follower works at ({w}x{h}): nothing to tell the object from")
-        self._share = share  # nothing is changed before the key frame is taken: a refused one leaves the follower
-        self._key_logit = _logit(self._share, 1e-3)
-        self._colours = _colour_table(rgb, self._share, known > 0.5)
-        self._key_rgb = rgb.astype(np.float32)
-        self._key_grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-        self._size, self._key_labels, self.bars = size, lab, Bars.of(full.rgb, lab)
-        self._grid = pixel_grid((h, w))
-        self._carry = self._key_carry = FollowCarry((self._share > 0.5).astype(np.uint8), self._key_grey,
-                                                    _histogram(_colour_index(rgb)))
+        full.check_key()
+        # made first, then taken at once: a key frame refused, or Ctrl-C while they are made, leaves the follower as it was
+        key_grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+        key_logit, colours, far = _logit(share, 1e-3), _colour_table(rgb, share, known > 0.5), _far_parts(lab, size)
+        bars, grid, histogram = Bars.of(full.rgb, lab), pixel_grid((h, w)), _histogram(_colour_index(rgb))
+        carry = FollowCarry((share > 0.5).astype(np.uint8), key_grey, histogram)
+        self._share, self._key_logit, self._colours, self._far_share = share, key_logit, colours, far
+        self._key_rgb, self._key_grey, self._size, self._key_labels = rgb.astype(np.float32), key_grey, size, lab
+        self.bars, self._grid, self._carry, self._key_carry = bars, grid, carry, carry
         self._frame = 0
         self.last = self.log_odds = None
 
     @one_caller
     def step(self, image) -> np.ndarray:
-        """Labels (H, W) uint8 (1 the object) of the next frame, an image or a PreparedFrame; see :attr:`last`."""
+        """Labels (H, W) uint8 (1 the object) of the next frame, an image or a PreparedFrame; see :attr:`last`. A step
+        that raises (an error, Ctrl-C) leaves the follower as it was: the next step is the one it would have been."""
         from .._threads import both
         from ..registration.flow import dis_flow, flow_field
         from .report import StepReport
@@ -460,19 +478,21 @@ class ObjectFollower(OneStream):
         prior = CARRY_WEIGHT * _logit(cv2.GaussianBlur(carried, (0, 0), CARRY_BLUR), 1e-4)
         prior += (KEY_WEIGHT * gate ** GATE_POWER) * trust * _warp(self._key_logit, key_field)
         fused = colour + prior
-        labels, confidence, self.log_odds = _read(prior, COLOUR_WEIGHT * self._colours[_colour_index(frame.rgb)],
-                                                  size, lost=back is None and not carry.labels.any())
-        self._carry = FollowCarry((fused > 0).astype(np.uint8), grey, histogram, held)
-        self._frame += 1
+        labels, confidence, log_odds = _read(prior, COLOUR_WEIGHT * self._colours[_colour_index(frame.rgb)],
+                                             size, lost=back is None and not carry.labels.any(),
+                                             parts=None if self._far_share is None else _warp(self._far_share, key_field) > 0.5)
         labels, confidence, at = kept_between(self.bars, frame.rgb, labels, confidence)  # a letterbox's bars kept
         t3 = time.perf_counter()
         times = {"register": t1 - t0, "classify": t2 - t1, "fuse": t3 - t2, "total": t3 - t0}
-        self.last = StepReport(frame=self._frame, registration=_flow_result(key_field, t1 - t0), reason=None,
-                               fallback=False, reference=0, times=times, confidence=confidence,
-                               predicted_error=float(100.0 * (1.0 - confidence[at]).mean()),
-                               trust=FollowTerms(prior), trust_summary={"gate": gate, **cut, "back": back is not None,
-                                              "predicted_iou": class_predicted_iou(labels[at], confidence[at], None)},
-                               log_odds=colour)
+        report = StepReport(frame=self._frame + 1, registration=_flow_result(key_field, t1 - t0), reason=None,
+                            fallback=False, reference=0, times=times, confidence=confidence,
+                            predicted_error=float(100.0 * (1.0 - confidence[at]).mean()),
+                            trust=FollowTerms(prior), trust_summary={"gate": gate, **cut, "back": back is not None,
+                                           "predicted_iou": class_predicted_iou(labels[at], confidence[at], None)},
+                            log_odds=colour)
+        # taken at once, at the end: a step that raises (Ctrl-C) leaves the follower as it was, as Propagator.step does
+        new_carry = FollowCarry((fused > 0).astype(np.uint8), grey, histogram, held)
+        self._carry, self._frame, self.log_odds, self.last = new_carry, self._frame + 1, log_odds, report
         return labels
 
     def _search(self, grey: np.ndarray, colours: np.ndarray,

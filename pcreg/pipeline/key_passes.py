@@ -268,9 +268,13 @@ class KeyRun:
             said = " and ".join(names) if len(names) < 3 else f"{names[0]} ... {names[-1]}"
             raise InputError(f"the labels of {said}: {exc}") from None
 
-    def _propagator(self, clf, image, labels, learning: bool):
+    def _propagator(self, clf, k: int, image, learning: bool):
+        """A stream of ``clf`` reset to the key frame at position ``k`` (its ``image``), one colour everywhere refused naming it."""
+        from ..frame import PreparedFrame
+
+        PreparedFrame.of(image, name=self.frames.where(k)).check_key(str(self.frames.where(k)))
         prop = self.config.propagator(clf, learns=learning)
-        prop.reset(image, labels)
+        prop.reset(image, self.keys[k])
         return prop
 
     def _resume(self, prop, s: Stretch, cur: dict) -> None:
@@ -314,7 +318,7 @@ class KeyRun:
         a, b = s.first, s.last
         assert a is not None and b is not None
         keys = {k: self._image(s, k) for k in (a, b)}
-        prop = self._propagator(self._classifier(s, keys), keys[a], self.keys[a], learning=False)
+        prop = self._propagator(self._classifier(s, keys), a, keys[a], learning=False)
         self._resume(prop, s, cur)
         start = a + 1 if cur["next"] is None else cur["next"]
         with WriteBehind() as writer:  # a frame's prior term, carry and commit written while the next is labelled
@@ -350,7 +354,7 @@ class KeyRun:
         both = s.first is not None
         keys = {k: self._image(s, k) for k in s.keys}
         clf = self._classifier(s, keys)
-        prop = self._propagator(clf, keys[b], self.keys[b], learning=not both)
+        prop = self._propagator(clf, b, keys[b], learning=not both)
         self._resume(prop, s, cur)
         start = b - 1 if cur["next"] is None else cur["next"]
         references = References(keys[b], prop.carry)
@@ -386,7 +390,7 @@ class KeyRun:
             raise InputError(f"{self.frames.path}: the video ends before key frame {self.frames.name(a)}")
         self.owner.gaps.mark(key)
         clf = self._classifier(s, {a: key.image})
-        prop = self._propagator(clf, key.image, self.keys[a], learning=True)
+        prop = self._propagator(clf, a, key.image, learning=True)
         self._resume(prop, s, cur)
         start = a + 1 if cur["next"] is None else cur["next"]
         references = References(key.image, prop.carry)

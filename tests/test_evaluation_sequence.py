@@ -60,8 +60,8 @@ def test_rerun_with_the_same_config_resumes(done, tmp_path):
 
 def test_a_different_config_needs_force(done, capsys):
     assert main(["evaluate", "sequence", *SMALL, "--increments", "2", "--out", str(done)]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "different configuration" in err[0]
+    err = capsys.readouterr().err.strip().splitlines()  # the setting that differs named (it said none)
+    assert len(err) == 1 and "different configuration (" in err[0] and "[1, 3] then, [2] now" in err[0], err
 
 
 def test_a_config_that_finished_nothing_is_replaced_without_force(tmp_path, capsys):

@@ -169,6 +169,19 @@ def changed_files(before: list[str], now: list[str]) -> str:
     return f"its files changed since: {shown} {what}{more}"
 
 
+def config_difference(before: object, now: dict) -> str:
+    """`` (NAME: A then, B now; ...)``: the settings of an evaluation's ``config.json`` (``before``) that ``now``'s
+    differ in, at most three named (each value shortened), or ``""``."""
+    from ..validation import short_repr
+
+    if not isinstance(before, dict):
+        return ""
+    names = sorted(k for k in before.keys() | now.keys() if before.get(k) != now.get(k))
+    said = [f"{k}: {short_repr(before.get(k))} then, {short_repr(now.get(k))} now" for k in names[:3]]
+    more = f"; and {len(names) - 3} more" if len(names) > 3 else ""
+    return f" ({'; '.join(said)}{more})" if said else ""
+
+
 class UnitStore:
     """Finished units of one evaluation, one JSON file each under ``out/units/``.
 
@@ -210,7 +223,7 @@ class UnitStore:
                 shutil.rmtree(self.dir)
             remove_report(self.out)
         elif old is not None and old != config and self._holds_results():
-            raise OutputError(f"{self.out} holds results of a different configuration "
+            raise OutputError(f"{self.out} holds results of a different configuration{config_difference(old, config)} "
                               "(use --force to replace them, or another --out)")
         elif old is None and self._holds_results():
             what = "results.json" if (self.out / "results.json").exists() else "units/ holds finished units"

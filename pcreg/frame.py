@@ -51,12 +51,14 @@ class PreparedFrame:
     def shape(self) -> tuple[int, int]:
         return self.rgb.shape[:2]
 
-    def check_key(self, name: str = "the key frame") -> "PreparedFrame":
+    def check_key(self, labels: np.ndarray, unknown: int, name: str = "the key frame") -> "PreparedFrame":
         """Itself, or an :class:`~pcreg.errors.InputError` naming it ``name`` when every pixel is one colour (a black
-        frame before a video starts, a blank capture): a key frame so holds nothing to tell its classes apart by, or
-        to follow."""
+        frame before a video starts, a blank capture) and its ``labels`` hold two classes or more besides ``unknown``:
+        a key frame so holds nothing to tell them apart by, or to follow. Labelled one class (a fade to black, all
+        background) it says what it holds."""
         first = self.rgb[0, 0]
-        if (self.rgb == first).all():
+        known = np.unique(labels)
+        if (known != unknown).sum() >= 2 and (self.rgb == first).all():
             raise InputError(f"{name} is one colour everywhere {tuple(int(v) for v in first)}: as a key frame it "
                              "holds nothing to tell its classes apart by, or to follow; choose one that shows the scene")
         return self

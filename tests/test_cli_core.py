@@ -214,7 +214,7 @@ def test_an_image_whose_black_half_is_read_as_padding_is_refused_saying_so(pair,
     assert p.returncode == 3 and p.stderr.splitlines() == [
         f"pcreg: registration refused: {tmp_path / 'step.png'}: the moving image has no usable edges: 50% of it is left "
         "out (pure black touching its border is read as padding from a warp, a transparent pixel as no picture), and "
-        "the rest holds none"], p.stderr
+        "the rest holds none (pcreg.register's moving_mask=None keeps every pixel)"], p.stderr
 
 
 def test_a_16_bit_image_of_8_bit_values_is_refused_saying_so(pair, tmp_path):

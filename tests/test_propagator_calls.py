@@ -205,13 +205,16 @@ def test_a_key_frame_of_one_colour_is_refused_naming_it(tmp_path, capsys, keys):
     from _runs import key_frames_of, one_line_errors
 
     folder, key = drifting_frames(tmp_path / "frames", shape=(96, 128), n=6)
-    black = folder / ("f4.png" if keys else "f0.png")
+    black = folder / ("f5.png" if keys else "f0.png")
     cv2.imwrite(str(black), np.zeros_like(cv2.imread(str(black))))
-    labels = key_frames_of(key, tmp_path / "keys", (0, 4)) if keys else key
+    labels = key_frames_of(key, tmp_path / "keys", (0, 5)) if keys else key
     assert main(["run", str(folder), "--labels", str(labels), "--out", str(tmp_path / "out")]) == 2
     assert one_line_errors(capsys) == [f"pcreg: error: {black} is one colour everywhere (0, 0, 0): as a key frame it "
                                        "holds nothing to tell its classes apart by, or to follow; choose one that "
                                        "shows the scene"]
+    if keys:  # a fade to black labelled all one class says what it holds: taken
+        cv2.imwrite(str(labels / "f5.png"), np.zeros_like(cv2.imread(str(labels / "f5.png"), cv2.IMREAD_UNCHANGED)))
+        assert main(["run", str(folder), "--labels", str(labels), "--out", str(tmp_path / "out")]) == 0
     mask = cv2.imread(str(key), cv2.IMREAD_UNCHANGED)
     grey = np.full(mask.shape + (3,), 128, np.uint8)
     for make in (lambda: Propagator.from_key_frame(grey, mask), lambda: ObjectFollower.from_key_frame(grey, mask % 2)):

@@ -270,7 +270,8 @@ def format_table(out: dict) -> str:
              f"{'rot deg':>9s} {'centroid':>9s} {'rel':>9s} {'agrees':>6s} {'s':>6s}"]
     cut = [name for name in out["implementations"] if len(name) > 24]  # each named in full below the table
     for name, r in out["implementations"].items():
-        label = name if len(name) <= 24 else f"{name[:17]}... [{cut.index(name) + 1}]"
+        tag = f"... [{cut.index(name) + 1}]" if len(name) > 24 else ""
+        label = name[:24 - len(tag)] + tag if tag else name
         if r["error"]:
             lines.append(f"{label:24s} {r['comparability']:12s} {r['status']}: {r['error']}")
             continue

@@ -86,7 +86,7 @@ if TYPE_CHECKING:
     from .report import StepReport
 
 __all__ = ["ObjectFollower", "FollowCarry", "FollowTerms", "SCALE", "CARRY_WEIGHT", "COLOUR_WEIGHT", "KEY_WEIGHT",
-           "RESIDUAL_SIGMA", "CARRY_BLUR", "GATE_POWER", "NEAR", "CONFIDENCE_SLOPE", "CONFIDENCE_OFFSET", "FLOW_PRESET",
+           "RESIDUAL_SIGMA", "CARRY_BLUR", "GATE_POWER", "NEAR", "FAR_PART_SHARE", "CONFIDENCE_SLOPE", "CONFIDENCE_OFFSET", "FLOW_PRESET",
            "CUT_RESIDUAL", "CUT_COLOUR_CHANGE", "can_follow", "colour_change", "cut_evidence", "frame_colours"]
 
 #: The working size, a share of the frames' sides (427x240 for 854x480): DIS at full size carried the
@@ -302,12 +302,21 @@ def _near_largest(mask: np.ndarray, reach: float, carried: np.ndarray | None = N
     return keep[parts]
 
 
+#: A part of the key frame's object farther than :data:`NEAR` px from its largest is followed when it holds at least
+#: this share of the object's pixels: a part drawn there, not a stray speck of the brush (ten 8x8 specks about a
+#: swan of 41,343 px were followed through the clip as object).
+FAR_PART_SHARE = 0.01
+
+
 def _far_parts(labels: np.ndarray, size: WorkingSize) -> np.ndarray | None:
     """(h, w) float32 at the working size: the object's share of each pixel in the key labels' parts farther than
-    :data:`NEAR` px from its largest (drawn there, so kept wherever the key flow carries them, as the labels of the
-    frames after it would drop them); None where the object is one part, or its parts lie within that reach."""
+    :data:`NEAR` px from its largest and of at least :data:`FAR_PART_SHARE` of the object (drawn there, so kept
+    wherever the key flow carries them, as the labels of the frames after it would drop them); None where there is
+    no such part."""
     obj = (labels == 1).astype(np.uint8)
-    far = obj - _near_largest(obj, NEAR)
+    n, parts, stats, _ = cv2.connectedComponentsWithStats(obj - _near_largest(obj, NEAR), connectivity=8)
+    big = np.flatnonzero(stats[:, cv2.CC_STAT_AREA] >= FAR_PART_SHARE * obj.sum())
+    far = np.isin(parts, big[big > 0]).astype(np.uint8)
     if not far.any():
         return None
     return _object_share(np.where(far > 0, 1, np.where(labels == 2, 2, 0)).astype(np.uint8), size)[1]
@@ -427,7 +436,7 @@ class ObjectFollower(OneStream):
         if not ((share <= 0.5) & (known > 0.5)).any():  # no colour of the background: its histogram is empty (0/0)
             raise InputError(f"the key frame's background ({int((lab == 0).sum())} px) covers no pixel at the size the "
                              f"follower works at ({w}x{h}): nothing to tell the object from")
-        full.check_key()
+        full.check_key(lab, 2)
         # made first, then taken at once: a key frame refused, or Ctrl-C while they are made, leaves the follower as it was
         key_grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
         key_logit, colours, far = _logit(share, 1e-3), _colour_table(rgb, share, known > 0.5), _far_parts(lab, size)
@@ -477,10 +486,10 @@ class ObjectFollower(OneStream):
         gate = float((on_key & on_chain).sum()) / max(1, int((on_key | on_chain).sum()))
         prior = CARRY_WEIGHT * _logit(cv2.GaussianBlur(carried, (0, 0), CARRY_BLUR), 1e-4)
         prior += (KEY_WEIGHT * gate ** GATE_POWER) * trust * _warp(self._key_logit, key_field)
-        fused = colour + prior
+        fused, far_share = colour + prior, getattr(self, "_far_share", None)  # None in a follower pickled before it
         labels, confidence, log_odds = _read(prior, COLOUR_WEIGHT * self._colours[_colour_index(frame.rgb)],
                                              size, lost=back is None and not carry.labels.any(),
-                                             parts=None if self._far_share is None else _warp(self._far_share, key_field) > 0.5)
+                                             parts=None if far_share is None else _warp(far_share, key_field) > 0.5)
         labels, confidence, at = kept_between(self.bars, frame.rgb, labels, confidence)  # a letterbox's bars kept
         t3 = time.perf_counter()
         times = {"register": t1 - t0, "classify": t2 - t1, "fuse": t3 - t2, "total": t3 - t0}

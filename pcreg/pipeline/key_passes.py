@@ -272,7 +272,9 @@ class KeyRun:
         """A stream of ``clf`` reset to the key frame at position ``k`` (its ``image``), one colour everywhere refused naming it."""
         from ..frame import PreparedFrame
 
-        PreparedFrame.of(image, name=self.frames.where(k)).check_key(str(self.frames.where(k)))
+        table = getattr(self.owner, "table", None)
+        PreparedFrame.of(image, name=self.frames.where(k)).check_key(self.keys[k], 2 if table is None else table.unknown,
+                                                                      str(self.frames.where(k)))
         prop = self.config.propagator(clf, learns=learning)
         prop.reset(image, self.keys[k])
         return prop

@@ -290,7 +290,7 @@ class Propagator(OneStream):
         self._size = size = WorkingSize(full.shape, self.scale)
         if size.scaled or self._estimator.checks_every_size:  # a size the motion cannot take: refused here
             size.check_for(self._estimator, self.model, self.scale, SCALE_ADVICE)
-        full.check_key()
+        full.check_key(lab, 2 if table is None else table.unknown)
         key = size.shrunk(full) if size.scaled else full.copy()  # the caller may reuse its array for the frames
         self._key, self._key_labels = key, lab
         self._key_trusted = self._key_flow = self._key_scene = None

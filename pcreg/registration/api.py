@@ -377,7 +377,8 @@ def _pyramids(ref_img: np.ndarray, mov_img: np.ndarray, reference_pyramid: Image
             left_out = 1.0 - float(np.mean(pyramid.valid))
             why = low_bits_note(image) or (f"{100 * left_out:.0f}% of it is left out (pure black touching its border is "
                                            "read as padding from a warp, a transparent pixel as no picture), and the "
-                                           "rest holds none" if left_out >= 0.05 else None)
+                                           f"rest holds none (pcreg.register's {name}_mask=None keeps every pixel)"
+                                           if left_out >= 0.05 else None)
             raise RegistrationError(f"the {name} image has no usable edges" + (f": {why}" if why else " (a flat or empty image?)"))
     return out[0], out[1]
 

@@ -162,7 +162,7 @@ def _key_image(request, frames, table, mapping: str) -> tuple[dict, tuple]:
         check_key_mask(key_labels, str(request.labels))
     decoded = decoded_to(frames, 0)  # a video's frames before --start decoded under a bar
     key = next(decoded)  # a source with no frame at --start raises, never ends empty
-    PreparedFrame.of(key.image, name=frames.where(0)).check_key(str(frames.where(0)))  # named as the file it is
+    PreparedFrame.of(key.image, name=frames.where(0)).check_key(key_labels, table.unknown, str(frames.where(0)))
     second = next(decoded, None)
     if second is None:
         raise InputError(f"{request.frames}: needs at least two frames (the key frame and one more), found 1")

@@ -27,7 +27,6 @@ import numpy as np
 
 from .classes import DEFAULT_TABLE, ClassTable
 from .errors import InputError
-from .outputs import shell_word
 from .validation import check_float
 from .formats import loads_json
 from .runs.files import StepTruth, finite_figure, step_class_iou
@@ -143,10 +142,9 @@ def read_review(folder: str | Path) -> RunReview:
     """
     from .classes.keys import run_table
     from .datasets.sources import FolderFrames, open_frames
-    from .runs.edited import FramesAsLabelled
+    from .runs.edited import FramesAsLabelled, check_source
     from .runs.files import STEPS, counted_steps, has_confidence
     from .runs.state import STATE, chosen_selection, read_state, run_frames, steps_counted_now
-    from .runs.video_file import check_labelled_video
 
     folder = Path(folder)
     state_path = folder / STATE
@@ -172,11 +170,7 @@ def read_review(folder: str | Path) -> RunReview:
     except (OSError, ValueError, KeyError, TypeError, AttributeError, UnicodeDecodeError):
         raise InputError(f"{state_path}: unreadable (not a run.json that pcreg run wrote)") from None
     table = run_table(run, str(state_path))
-    if not source.exists():
-        raise InputError(f"{state_path}: the run's {kind} {source} is gone (the frames are read from there); moved with its project? the same "
-                         f"pcreg run with the {kind}'s new path and --out {shell_word(folder)} names the new places in run.json, and goes on from what was labelled")
-    if kind == "video":  # written over since: its frames are not those labelled (a folder's are checked step by step)
-        check_labelled_video(state, source, folder, "review")
+    check_source(state, kind, source, folder)
     frames = open_frames(source, selection)
     if labelled is None:  # a run from one label image labels its frames in order
         done = min(count, len(frames)) if isinstance(frames, FolderFrames) else count

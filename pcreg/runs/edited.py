@@ -11,7 +11,7 @@ from ..errors import InputError, OutputError
 from .files import STEPS, parse_steps, step_lines
 from .state import STATE
 
-__all__ = ["FramesAsLabelled", "check_same_inputs", "check_same_frames", "check_same_frame", "check_same_truth", "check_key_files", "frame_bytes",
+__all__ = ["FramesAsLabelled", "check_source", "check_same_inputs", "check_same_frames", "check_same_frame", "check_same_truth", "check_key_files", "frame_bytes",
            "frame_stamp", "file_digest", "key_contents", "frame_moved", "moved_error"]
 
 
@@ -184,3 +184,18 @@ class FramesAsLabelled:
     def check(self) -> None:
         if self.moved:
             raise moved_error(self.frames, self.folder, *min(self.moved))
+
+
+def check_source(state: dict, kind: str, source: Path, folder: Path) -> None:
+    """For the review of the run in ``folder`` (``state`` its run.json): an :class:`~pcreg.errors.InputError` when
+    the run's ``source`` (its ``kind``, video or folder) is gone, or is a video written over since
+    (:func:`~pcreg.runs.video_file.check_labelled_video`: its frames are not those labelled; a folder's frames are
+    checked step by step)."""
+    from ..outputs import shell_word
+    from .video_file import check_labelled_video
+
+    if not source.exists():
+        raise InputError(f"{folder / STATE}: the run's {kind} {source} is gone (the frames are read from there); moved with its project? the same "
+                         f"pcreg run with the {kind}'s new path and --out {shell_word(folder)} names the new places in run.json, and goes on from what was labelled")
+    if kind == "video":
+        check_labelled_video(state, source, folder, "review")

@@ -12,9 +12,10 @@ is stepped by one thread at a time.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import threading
-from typing import Callable, TypeVar
+from typing import Callable, Iterator, TypeVar
 
 from .errors import InputError
 
@@ -27,18 +28,30 @@ F = TypeVar("F", bound=Callable)
 CALLER = "_pcreg_caller"
 
 
+@contextlib.contextmanager
+def interrupts_unwrapped() -> Iterator[None]:
+    """Raise the ``KeyboardInterrupt`` that a compiled kernel wrapped in a ``SystemError`` (or in one wrapped in
+    another: a kernel loaded from numba's cache while Ctrl-C lands) within the block; any other error as it is."""
+    try:
+        yield
+    except SystemError as exc:
+        cause: BaseException | None = exc
+        for _ in range(8):  # the chain of SystemErrors down to what was raised in the kernel
+            if not isinstance(cause, SystemError):
+                break
+            cause = cause.__cause__ if cause.__cause__ is not None else cause.__context__
+        if isinstance(cause, KeyboardInterrupt):
+            raise cause.with_traceback(None) from None
+        raise
+
+
 def interruptible(fn: F) -> F:
-    """``fn``, raising the ``KeyboardInterrupt`` that a compiled kernel wrapped in a ``SystemError``."""
+    """``fn`` within :func:`interrupts_unwrapped`."""
 
     @functools.wraps(fn)
     def call(*args, **kwargs):
-        try:
+        with interrupts_unwrapped():
             return fn(*args, **kwargs)
-        except SystemError as exc:
-            cause = exc.__cause__ if exc.__cause__ is not None else exc.__context__
-            if isinstance(cause, KeyboardInterrupt):
-                raise cause.with_traceback(None) from None
-            raise
 
     return call  # type: ignore[return-value]
 

@@ -323,9 +323,7 @@ def check_output(path: str | os.PathLike, *, force: bool, inputs: tuple = ()) ->
     path = Path(path)
     if path.is_dir():
         raise OutputError(f"{path} is a folder; give a file name")
-    for given in inputs:
-        if _same_file(path, given):
-            raise OutputError(f"{path} is the input {given}; the output would overwrite it (choose another file)")
+    check_not_input(path, inputs)
     if path.is_symlink() and not path.exists() and not force:  # a link to nothing, or a loop of links
         raise OutputError(f"{path} exists, a symbolic link to nothing (use --force to overwrite)")
     if path.exists() and not path.is_file():
@@ -340,6 +338,14 @@ def check_output(path: str | os.PathLike, *, force: bool, inputs: tuple = ()) ->
     if parent.exists() and not parent.is_dir():
         raise OutputError(f"cannot write {path}: {parent} is not a folder")
     return path
+
+
+def check_not_input(path: str | os.PathLike, inputs: tuple = ()) -> None:
+    """An :class:`~pcreg.errors.OutputError` when ``path`` is one of the command's ``inputs`` (paths, None skipped),
+    links followed: an output written there would overwrite it, ``--force`` or not."""
+    for given in inputs:
+        if given is not None and _same_file(Path(path), given):
+            raise OutputError(f"{path} is the input {given}; the output would overwrite it (choose another file)")
 
 
 def _same_file(a: Path, b: str | os.PathLike) -> bool:

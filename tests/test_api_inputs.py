@@ -322,3 +322,19 @@ def test_another_scene_is_a_cut_at_sizes_too_small_for_the_flow_of_the_cut_test(
     prop = pcreg.Propagator.from_key_frame(key, labels)
     prop.step(np.roll(key, 1, axis=1))  # the same scene, moved
     assert prop.last.trust_summary["cut"] is False and float(prop.last.confidence.mean()) > 0.8
+
+
+def test_a_bool_mask_warped_linearly_keeps_what_is_at_least_half_inside():
+    """A line 1 px wide shifted by half a pixel came back empty (the mask went through OpenCV as 0 and 1, each pixel
+    rounded to 0); as a uint8 0/255 mask the same warp keeps it at 128."""
+    import pcreg
+
+    mask = np.zeros((40, 160), bool)
+    mask[20, 20:140] = True
+    T = np.eye(3)
+    T[1, 2] = 0.5
+    warped, valid = pcreg.warp(mask, T)
+    assert warped.dtype == bool and warped[20:22, 20:140].all() and warped.sum() == 240
+    assert pcreg.warp(mask, T, interpolation="nearest")[0].sum() == 120
+    as_uint8 = pcreg.warp(mask.astype(np.uint8) * 255, T)[0]
+    assert np.array_equal(warped, as_uint8 >= 128)

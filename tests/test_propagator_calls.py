@@ -220,3 +220,28 @@ def test_a_key_frame_of_one_colour_is_refused_naming_it(tmp_path, capsys, keys):
     for make in (lambda: Propagator.from_key_frame(grey, mask), lambda: ObjectFollower.from_key_frame(grey, mask % 2)):
         with pytest.raises(InputError, match=r"^the key frame is one colour everywhere \(128, 128, 128\)"):
             make()
+
+
+def _interrupted_twice(*args, **kwargs):
+    """What a kernel loaded from numba's cache while Ctrl-C lands gives: a SystemError from a SystemError from it."""
+    try:
+        _interrupted_kernel()
+    except SystemError as exc:
+        raise SystemError("<function _numba_unpickle> returned a result with an exception set") from exc
+
+
+@pytest.mark.parametrize("kernel", [_interrupted_kernel, _interrupted_twice])
+def test_a_ctrl_c_in_a_kernel_of_the_public_functions_is_a_keyboard_interrupt(monkeypatch, kernel):
+    """pcreg.register_dense (13 of 40 interrupts), register(model="dense") and icp raised the SystemError, and one
+    wrapped twice was not unwrapped by the streams either."""
+    import pcreg
+    import pcreg.registration.dense.window as window
+
+    frames = pcreg.synthetic("syn1a", 2, 0, width=160, height=120)
+    monkeypatch.setattr(window, "_match_window_jit", kernel)
+    for call in (lambda: pcreg.register_dense(frames[0].image, frames[1].image),
+                 lambda: pcreg.register(frames[0].image, frames[1].image, model="dense")):
+        with pytest.raises(KeyboardInterrupt):
+            call()
+    with pytest.raises(KeyboardInterrupt):
+        interruptible(kernel)()

@@ -698,3 +698,23 @@ def test_the_global_searchs_square_canvases_stay_bounded_for_a_long_strip(monkey
         assert abs(r.matrix[0, 2] - 7.0) < 0.5 and abs(r.matrix[1, 2]) < 0.5, generators
     assert {g for g, _ in sides} == {"fourier_mellin", "edges"}
     assert all(side <= SEARCH_MAX_CANVAS for _, side in sides), sides
+
+
+def test_a_min_inlier_ratio_of_0_turns_the_test_and_the_checks_off_as_none_does():
+    """The docs and the command line (--min-inlier-ratio 0) say 0 turns the test off, and every check with it: the
+    library kept 0.0 and still refused an image against noise ("the images do not pin the motion down")."""
+    fr = pcreg.synthetic("syn2a", n_frames=1, width=320, height=240)
+    noise = np.random.default_rng(0).integers(0, 255, fr[0].image.shape, dtype=np.uint8)
+    for off in (None, 0, 0.0):
+        cfg = pcreg.RegisterConfig.of(min_inlier_ratio=off)
+        assert cfg.plausibility.min_inlier_ratio is None
+        assert pcreg.register(fr[0].image, noise, config=cfg).evidence is not None
+
+
+def test_a_seed_opencv_cannot_take_is_refused_by_the_config():
+    """RegisterConfig.of(seed=2**31) was taken, and register failed deep in OpenCV (`integer won't fit into a C int`,
+    an OverflowError for 2**63) when its ORB fit ran."""
+    assert pcreg.RegisterConfig.of(seed=2**31 - 1).search.seed == 2**31 - 1
+    for seed in (2**31, 2**63, 2**70):
+        with pytest.raises(pcreg.InputError, match=r"seed must be in 0\.\.2147483647"):
+            pcreg.RegisterConfig.of(seed=seed)

@@ -222,3 +222,23 @@ def test_a_label_png_written_before_its_step_line_goes_with_the_run_that_stopped
     assert main([*run, "--force", "--confidence"]) == 2
     assert f"{out} holds the earlier run again, as it was" in one_line_errors(capsys)[-1]
     assert _contents(out) == earlier and not (out / EARLIER).exists()
+
+
+def test_a_recording_onto_an_input_is_refused_force_or_not(tmp_path, capsys):
+    """`pcreg register REF.rrd MOV --record REF.rrd --force` replaced the reference image with the recording, exit 0;
+    `pcreg run --record` onto the key labels would have too. Refused, as `--out` and `--screenshot` are."""
+    import shutil
+
+    folder, png = drifting_frames(tmp_path / "frames", shape=(96, 128), n=4)
+    ref, key = tmp_path / "ref.rrd", tmp_path / "key.rrd"  # a PNG by its contents, whatever its name
+    shutil.copy(folder / "f0.png", ref)
+    shutil.copy(png, key)
+    before = ref.read_bytes()
+    for args in (["register", str(ref), str(folder / "f1.png"), "--record", str(ref), "--force"],
+                 ["run", str(folder), "--labels", str(key), "--out", str(tmp_path / "out"), "--record", str(key),
+                  "--force"]):
+        capsys.readouterr()
+        assert main(args) == 2
+        said = one_line_errors(capsys)
+        assert len(said) == 1 and "the output would overwrite it" in said[0], said
+    assert ref.read_bytes() == before and key.is_file() and key.stat().st_size > 100

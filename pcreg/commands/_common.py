@@ -106,16 +106,16 @@ def add_record_arguments(p: argparse.ArgumentParser, *, force: str = "overwrite 
     g.add_argument("--force", action="store_true", help=force)
 
 
-def open_recorder(args: argparse.Namespace, *, name: str, layout: bool | str = True):
+def open_recorder(args: argparse.Namespace, *, name: str, layout: bool | str = True, inputs: tuple = ()):
     """A :class:`pcreg.recording.recorder.Recorder` for ``--record``, or the null recorder (in a null context):
-    :func:`pcreg.recording.recorder.open_recording`."""
+    :func:`pcreg.recording.recorder.open_recording` (``inputs``: the command's files, which it must not be)."""
     from ..recording.null import NULL_RECORDER
 
     if not getattr(args, "record", None):
         return contextlib.nullcontext(NULL_RECORDER)
     from ..recording.recorder import open_recording
 
-    return open_recording(args.record, name=name, raw=args.record_raw, force=args.force, layout=layout)
+    return open_recording(args.record, name=name, raw=args.record_raw, force=args.force, layout=layout, inputs=inputs)
 
 
 def init_refusal(exc: Exception, path: str):

@@ -187,7 +187,7 @@ def _clouds(args) -> int:
         init = read_text_matrix(args.init, what="initial guess")  # regular file, bounded, finite
     voxel = args.voxel_size or (args.voxel_sizes[-1] if args.voxel_sizes else None)
     names = _implementations(args)
-    with open_recorder(args, name=f"crosscheck {args.b} -> {args.a}", layout="crosscheck") as rec:
+    with open_recorder(args, name=f"crosscheck {args.b} -> {args.a}", layout="crosscheck", inputs=(args.a, args.b)) as rec:
         rec.set_frame(0)
         rec.log_config({k: v for k, v in vars(args).items() if not k.startswith("_")})
         # Libraries print from C++ straight to file descriptor 1: keep stdout for the report alone.
@@ -342,7 +342,7 @@ def _images(args) -> int:
         max_correspondence_distance=args.max_distance if args.max_distance else 2.5,
         relative_fitness=args.relative_fitness,
         relative_rmse=RMSE_TOLERANCE if args.relative_rmse is None else args.relative_rmse))
-    with open_recorder(args, name=f"crosscheck {args.b} -> {args.a}", layout="crosscheck") as rec:
+    with open_recorder(args, name=f"crosscheck {args.b} -> {args.a}", layout="crosscheck", inputs=(args.a, args.b)) as rec:
         rec.set_frame(0)
         rec.log_config({k: v for k, v in vars(args).items() if not k.startswith("_")})
         callbacks = {b: rec.icp_callback(b) for b in ("reference", "open3d")}  # None each without a recording

@@ -65,7 +65,8 @@ def run(args: argparse.Namespace) -> int:
     if args.model == "dense" and ref.shape[:2] != mov.shape[:2]:
         raise InputError(f"{args.moving}: {mov.shape[1]}x{mov.shape[0]} px, the reference {args.reference} "
                          f"{ref.shape[1]}x{ref.shape[0]}: the dense model needs images of one size")
-    with open_recorder(args, name=f"register {args.moving} -> {args.reference}") as rec:
+    with open_recorder(args, name=f"register {args.moving} -> {args.reference}",
+                       inputs=(args.reference, args.moving, getattr(args, "init", None))) as rec:
         rec.set_frame(0)
         rec.log_config({k: v for k, v in vars(args).items() if not k.startswith("_")})
         rec.log_images(reference=ref, moving=mov)

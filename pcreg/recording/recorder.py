@@ -75,16 +75,18 @@ def _kind(kind: str | None, blueprint: bool | str) -> str | None:
 
 
 def open_recording(path: str | os.PathLike | None, *, name: str, raw: bool = False, force: bool = False,
-                   layout: bool | str = True, classes: Any = None):
+                   layout: bool | str = True, classes: Any = None, inputs: tuple = ()):
     """A :class:`Recorder` writing ``path`` (``name``: the recording's; ``raw``: images lossless; ``force``:
     overwrite; ``layout``: its ``blueprint``; ``classes``: its class table), or, with no path, the null recorder
-    in a null context."""
+    in a null context. A ``path`` that is one of the command's ``inputs`` is refused, ``force`` or not."""
     import contextlib
 
+    from ..outputs import check_not_input
     from .null import NULL_RECORDER
 
     if not path:
         return contextlib.nullcontext(NULL_RECORDER)
+    check_not_input(path, inputs)
     return Recorder(path, recording_name=name, raw_images=raw, force=force, blueprint=layout, classes=classes)
 
 

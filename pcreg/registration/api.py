@@ -14,6 +14,7 @@ from typing import Callable
 
 import numpy as np
 
+from .._calls import interrupts_unwrapped
 from ..errors import InputError, RegistrationError
 from ..frame import low_bits_note
 from ..validation import check_callable, check_int, check_matrix
@@ -87,9 +88,10 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, config: R
     Returns a :class:`RegistrationResult` with ``inlier_ratio``, ``overlap`` and ``generator`` (which
     generator's hypothesis won, or ``"init"``) besides the ICP's own figures.
     """
-    return _register(reference_image, moving_image, config=config, model=model, backend=backend, init=init,
-                     masks=(reference_mask, moving_mask), pyramids=(reference_pyramid, moving_pyramid), callback=callback,
-                     judged=False)[0]
+    with interrupts_unwrapped():  # Ctrl-C in a compiled kernel: the KeyboardInterrupt, not numba's SystemError
+        return _register(reference_image, moving_image, config=config, model=model, backend=backend, init=init,
+                         masks=(reference_mask, moving_mask), pyramids=(reference_pyramid, moving_pyramid),
+                         callback=callback, judged=False)[0]
 
 
 def register_judged(reference_image: np.ndarray, moving_image: np.ndarray, *, config: RegisterConfig = RegisterConfig(),
@@ -250,9 +252,10 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, opt
         check_prepared(prepared, ref, options)
     check_callable(callback, "callback")
     start = _initial_grid(initial, ref.shape, options)
-    global_result, given_seconds = _global_step(ref, mov, global_result, options)
-    return refine_field(ref, mov, global_result, options, callback=callback, started=t_start,
-                        given_seconds=given_seconds, initial=start, prepared=prepared)
+    with interrupts_unwrapped():  # Ctrl-C in a compiled kernel: the KeyboardInterrupt, not numba's SystemError
+        global_result, given_seconds = _global_step(ref, mov, global_result, options)
+        return refine_field(ref, mov, global_result, options, callback=callback, started=t_start,
+                            given_seconds=given_seconds, initial=start, prepared=prepared)
 
 
 def _initial_grid(initial, shape: tuple[int, ...], options: DenseOptions) -> InitialGrid | None:

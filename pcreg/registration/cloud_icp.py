@@ -9,6 +9,7 @@ from typing import Callable
 
 import numpy as np
 
+from .._calls import interrupts_unwrapped
 from ..errors import InputError, RegistrationError
 from ..validation import check_callable, check_matrix, short_repr
 from .icp_options import METRICS, WEIGHTS, ICPOptions, VoxelSchedule, refuse_a_line_for_open3d
@@ -156,44 +157,45 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, options: ICPOption
             raise InputError("target_normals must have the target's shape")
         _check_normals(target_normals)
     T = np.eye(dim + 1) if init is None else check_init(check_matrix(init, "init", dim + 1), options.model)
-    max_correspondence_distance = _check_distance(src, tgt, T, options.max_correspondence_distance)
-    start_pose = T
-    start = time.perf_counter()
-    first = scores_at(src, tgt, T, max_correspondence_distance) if options.metric in LINEARISED_METRICS else None
-    schedule = _voxel_schedule(src, tgt, options.schedule, distance=max_correspondence_distance,
-                               max_iteration=options.max_iteration)
-    if options.schedule is not None:
-        _check_last_scale(schedule[-1], options.schedule.voxel_sizes[-1], options.model)
-    step = icp_step(options.backend)
-    settings = IcpSettings(model=options.model, relative_fitness=options.relative_fitness, weights=options.weights,
-                           trim_fraction=options.trim_fraction, metric=options.metric, rotation=options.rotation,
-                           stepwise=options.count_iterations)
-    tolerance = options.stopping_rmse(src, tgt)
-    total_iter = 0
-    for i, (s, t, d, n) in enumerate(schedule):
-        scale_start = T
-        r = step(s, t, T, settings, StepCall(max_correspondence_distance=d, max_iteration=n,
-                                             relative_rmse=tolerance, level=len(schedule) - 1 - i,
-                                             callback=callback,
-                                             target_normals=target_normals if options.schedule is None else None))
-        T = r.matrix
-        total_iter = -1 if (r.iterations < 0 or total_iter < 0) else total_iter + r.iterations
-    seconds = time.perf_counter() - start
-    if r.fitness == 0:  # as Open3D, no pair moved nothing: a transform no point supports is no registration
-        where = ("the ICP stopped where it started" if np.array_equal(T, start_pose) else
-                 "the ICP moved the source away from the target (its steps diverged)")
-        raise RegistrationError(f"registration refused: no source point lies within the correspondence distance "
-                                f"{schedule[-1][2]:g} of a target point; {where} (give an init "
-                                "that brings the clouds together, or a larger max_correspondence_distance)")
-    check_support(T, s, t, d, options.model, converged=r.converged is not False)  # the last scale's clouds
-    # a run stopped by its iterations took steps all the same (Open3D's takes one on any pairs): judged as one that ended
-    stepped = r.converged is not False or not np.array_equal(T, scale_start)
-    check_rotation_pairs(r.fitness, len(s), options.model, dim, d, converged=stepped, metric=options.metric)
-    if first is not None:  # one scale: a linearised metric takes no schedule
-        check_progress(first, r, d, options.metric)
-        check_paired_normals(T, s, t, target_normals, d, options.metric)
-    return RegistrationResult(matrix=T, fitness=r.fitness, inlier_rmse=r.inlier_rmse, iterations=total_iter,
-                              converged=r.converged, backend=options.backend, seconds=seconds)
+    with interrupts_unwrapped():  # Ctrl-C in a compiled kernel: the KeyboardInterrupt, not numba's SystemError
+        max_correspondence_distance = _check_distance(src, tgt, T, options.max_correspondence_distance)
+        start_pose = T
+        start = time.perf_counter()
+        first = scores_at(src, tgt, T, max_correspondence_distance) if options.metric in LINEARISED_METRICS else None
+        schedule = _voxel_schedule(src, tgt, options.schedule, distance=max_correspondence_distance,
+                                   max_iteration=options.max_iteration)
+        if options.schedule is not None:
+            _check_last_scale(schedule[-1], options.schedule.voxel_sizes[-1], options.model)
+        step = icp_step(options.backend)
+        settings = IcpSettings(model=options.model, relative_fitness=options.relative_fitness, weights=options.weights,
+                               trim_fraction=options.trim_fraction, metric=options.metric, rotation=options.rotation,
+                               stepwise=options.count_iterations)
+        tolerance = options.stopping_rmse(src, tgt)
+        total_iter = 0
+        for i, (s, t, d, n) in enumerate(schedule):
+            scale_start = T
+            r = step(s, t, T, settings, StepCall(max_correspondence_distance=d, max_iteration=n,
+                                                 relative_rmse=tolerance, level=len(schedule) - 1 - i,
+                                                 callback=callback,
+                                                 target_normals=target_normals if options.schedule is None else None))
+            T = r.matrix
+            total_iter = -1 if (r.iterations < 0 or total_iter < 0) else total_iter + r.iterations
+        seconds = time.perf_counter() - start
+        if r.fitness == 0:  # as Open3D, no pair moved nothing: a transform no point supports is no registration
+            where = ("the ICP stopped where it started" if np.array_equal(T, start_pose) else
+                     "the ICP moved the source away from the target (its steps diverged)")
+            raise RegistrationError(f"registration refused: no source point lies within the correspondence distance "
+                                    f"{schedule[-1][2]:g} of a target point; {where} (give an init "
+                                    "that brings the clouds together, or a larger max_correspondence_distance)")
+        check_support(T, s, t, d, options.model, converged=r.converged is not False)  # the last scale's clouds
+        # a run stopped by its iterations took steps all the same (Open3D's takes one on any pairs): judged as one that ended
+        stepped = r.converged is not False or not np.array_equal(T, scale_start)
+        check_rotation_pairs(r.fitness, len(s), options.model, dim, d, converged=stepped, metric=options.metric)
+        if first is not None:  # one scale: a linearised metric takes no schedule
+            check_progress(first, r, d, options.metric)
+            check_paired_normals(T, s, t, target_normals, d, options.metric)
+        return RegistrationResult(matrix=T, fitness=r.fitness, inlier_rmse=r.inlier_rmse, iterations=total_iter,
+                                  converged=r.converged, backend=options.backend, seconds=seconds)
 
 
 def _check_icp_options(options: ICPOptions, dim: int, target_normals) -> None:

@@ -14,6 +14,7 @@ from typing import Sequence
 import cv2
 import numpy as np
 
+from .._calls import interrupts_unwrapped
 from .._signals import _shielded, check_interrupted
 from ..errors import ImageWarning, InputError, outside_pcreg
 from ..frame import FLOAT_FILE_HINT, MIN_SIDE, as_rgb_uint8
@@ -318,9 +319,10 @@ def image_cloud(image: np.ndarray, *, sampler: str = "canny", max_points: int | 
         if min(lvl_img.shape[:2]) < 16:
             raise InputError(f"image {img.shape[1]}x{img.shape[0]} is too small for pyramid level {level}")
         lvl_img = cv2.pyrDown(lvl_img)
-    return level_cloud(lvl_img, level=level, shape=img.shape[:2], mask=mask, sampler=sampler, max_points=max_points,
-                       grid_step=grid_step, top_k=top_k, subpixel=subpixel, seed=seed,
-                       canny_percentile=canny_percentile)
+    with interrupts_unwrapped():  # Ctrl-C in a compiled kernel: the KeyboardInterrupt, not numba's SystemError
+        return level_cloud(lvl_img, level=level, shape=img.shape[:2], mask=mask, sampler=sampler, max_points=max_points,
+                           grid_step=grid_step, top_k=top_k, subpixel=subpixel, seed=seed,
+                           canny_percentile=canny_percentile)
 
 
 def level_cloud(lvl_img: np.ndarray, *, level: int, shape: tuple[int, int], mask: np.ndarray | None,

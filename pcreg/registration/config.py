@@ -122,7 +122,7 @@ class SearchConfig:
         _set(self, "generators", generators)
         _set(self, "angle_step", check_float(self.angle_step, "angle_step", lo=0.01, hi=360))
         _set(self, "n_candidates", check_int(self.n_candidates, "n_candidates", lo=1, hi=360))
-        _set(self, "seed", check_int(self.seed, "seed", lo=0))
+        _set(self, "seed", check_int(self.seed, "seed", lo=0, hi=2**31 - 1))  # OpenCV's RNG takes a C int
 
 
 @dataclass(frozen=True)
@@ -179,8 +179,9 @@ class PlausibilityConfig:
     model_check: bool = True
 
     def __post_init__(self) -> None:
-        if self.min_inlier_ratio is not None:
-            _set(self, "min_inlier_ratio", check_float(self.min_inlier_ratio, "min_inlier_ratio", lo=0, hi=1))
+        if self.min_inlier_ratio is not None:  # 0 turns the test off, as None does (and as --min-inlier-ratio 0)
+            ratio = check_float(self.min_inlier_ratio, "min_inlier_ratio", lo=0, hi=1)
+            _set(self, "min_inlier_ratio", ratio if ratio > 0 else None)
         _set(self, "inlier_tolerance", check_float(self.inlier_tolerance, "inlier_tolerance", lo=0, lo_open=True))
         if not isinstance(self.model_check, bool):
             raise InputError(f"model_check must be True or False, got {short_repr(self.model_check)}")

@@ -31,7 +31,8 @@ def warp(moving: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] | None = None,
     ``valid`` then also requires the inversion to have converged there (folds and occlusions do not).
 
     moving : (H, W) or (H, W, C) array (uint8 images, uint8 labels with ``interpolation="nearest"``,
-        float32 posteriors, ...), in either byte order (a big-endian one is warped in the machine's).
+        float32 posteriors, bool masks: True where at least half of a pixel's interpolation is, ...), in either byte
+        order (a big-endian one is warped in the machine's).
     T_ref_mov : (3, 3) maps moving pixel coordinates into reference pixel coordinates (affine or projective).
     shape : (H, W) of the reference grid (default: the moving image's).
     Returns ``(warped, valid)``: ``warped`` has the reference's size and ``moving``'s dtype and channels,
@@ -134,8 +135,11 @@ def _resample(src: np.ndarray, one, *, interpolation: str, fill: float) -> tuple
     at most 4 at a time, with ``src``'s dtype and channels; and the mask of output pixels whose every
     interpolation weight fell inside ``src`` (no blend with ``fill``)."""
     flags = _INTERP[interpolation]
-    # OpenCV resamples neither bool nor float16: they go through uint8 and float32.
-    img = src.astype(np.uint8) if src.dtype == np.bool_ else src.astype(np.float32) if src.dtype == np.float16 else src
+    # OpenCV resamples neither bool nor float16: they go through uint8 (0 and 255, a pixel True where at least half of
+    # its interpolation is: as 0 and 1, a line 1 px wide shifted by half a pixel came back empty) and float32.
+    mask = src.dtype == np.bool_
+    img = src.astype(np.uint8) * np.uint8(255) if mask else src.astype(np.float32) if src.dtype == np.float16 else src
+    fill = 255 * fill if mask else fill
     channels = 1 if img.ndim == 2 else img.shape[2]
     try:
         if channels > 4:  # OpenCV warps up to 4 channels at once
@@ -148,8 +152,8 @@ def _resample(src: np.ndarray, one, *, interpolation: str, fill: float) -> tuple
         out = out[:, :, None]
     ones = np.ones(src.shape[:2], np.float32)
     valid = one(ones, cv2.INTER_NEAREST if interpolation == "nearest" else cv2.INTER_LINEAR, 0) > 0.999
-    if src.dtype == np.bool_:
-        out = out.astype(bool)
+    if mask:
+        out = out >= 128
     elif src.dtype == np.float16:
         out = out.astype(np.float16)
     return out, valid

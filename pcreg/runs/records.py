@@ -59,8 +59,10 @@ def run_recording(request, table, earlier=None):
 
     if not request.record:  # rerun not loaded (a third of a second; under a low limit of open files, a panic)
         return contextlib.nullcontext(NULL_RECORDER)
+    from ..outputs import check_not_input
     from ..recording.recorder import open_recording
 
+    check_not_input(request.record, (request.frames, request.labels, getattr(request, "truth", None)))
     if not request.force and Path(request.record).is_file():
         raise OutputError(f"{request.record} exists (the recording of this run as it stopped, or another file); to go "
                           "on from there, give another --record file (it holds the frames from there on); to record "

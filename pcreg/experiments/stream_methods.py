@@ -162,7 +162,6 @@ class Timed:
         self.labeller, self.seconds = labeller, 0.0
         _kernels_ready()
 
-
     def step(self, image: np.ndarray) -> np.ndarray:
         t0 = time.perf_counter()
         labels = self.labeller.step(image)

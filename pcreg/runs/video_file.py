@@ -99,16 +99,27 @@ def labelled_to_end(state: dict) -> bool:
     return "video_file" in state and state.get("video_end") == state["done"]
 
 
+def _written_over(state: dict, path: Path) -> tuple[int, int] | None:
+    """``(size then, size now)`` when the video file at ``path`` is no longer the one run.json (``state``) names in
+    ``video_file``, nor it with bytes appended; None when it is, or run.json names none (an earlier pcreg's)."""
+    before = state.get("video_file")
+    if before is None:
+        return None
+    now = fingerprint(path)
+    if _same_bytes(before, now) or _appended(before, path, now):
+        return None
+    return before["size"], now["size"]
+
+
 def check_kept(state: dict, frames, out: Path) -> None:
     """An :class:`~pcreg.errors.OutputError` when the video file (``frames.path``) is no longer the one run.json names
     (``state``'s ``video_file``) nor it with bytes appended: written again while the run in ``out`` decoded it, so that
     the frames it labelled may be of two videos (a resume would refuse the file; the run that labelled them said
     nothing)."""
-    before, now = state.get("video_file"), fingerprint(frames.path)
-    if before is None or _same_bytes(before, now) or _appended(before, frames.path, now):
-        return
-    raise OutputError(f"{frames.path}: written again while the run in {out} labelled it ({before['size']} bytes when "
-                      f"it began, {now['size']} now): its labels may be of two videos; use --force to start over")
+    sizes = _written_over(state, frames.path)
+    if sizes is not None:
+        raise OutputError(f"{frames.path}: written again while the run in {out} labelled it ({sizes[0]} bytes when "
+                          f"it began, {sizes[1]} now): its labels may be of two videos; use --force to start over")
 
 
 def check_labelled_video(state: dict, path: Path, out: Path, doing: str) -> None:
@@ -119,15 +130,11 @@ def check_labelled_video(state: dict, path: Path, out: Path, doing: str) -> None
     pcreg) is not checked."""
     from ..errors import InputError
 
-    before = state.get("video_file")
-    if before is None:
-        return
-    now = fingerprint(path)
-    if _same_bytes(before, now) or _appended(before, path, now):
-        return
-    raise InputError(f"{path}: not the video the run in {out} labelled (its size or bytes changed since: {before['size']} "
-                     f"bytes then, {now['size']} now), so its labels are not of these frames; label it again (pcreg run "
-                     f"... --force) to {doing} it")
+    sizes = _written_over(state, path)
+    if sizes is not None:
+        raise InputError(f"{path}: not the video the run in {out} labelled (its size or bytes changed since: {sizes[0]} "
+                         f"bytes then, {sizes[1]} now), so its labels are not of these frames; label it again (pcreg run "
+                         f"... --force) to {doing} it")
 
 
 def mark_end(state: dict, frames, out: Path) -> None:

@@ -252,6 +252,31 @@ def test_a_stream_recording_draws_each_frame_over_its_key_frame(tmp_path):
         np.testing.assert_array_equal(image(rec.moving(counter)), frames[t].image)
 
 
+def test_a_resumed_evaluation_records_only_what_it_runs_and_says_so(tmp_path, capsys):
+    """A finished evaluation run again with a new ``--record`` wrote a recording of no frame, which its report
+    named as the evaluation's own; one resumed after a stop recorded the rest without a word."""
+    import pcreg
+    from pcreg.experiments.reports.files import recordings
+    from pcreg.recording.readback import ended, image, read_recording
+
+    out = tmp_path / "out"
+    args = ["evaluate", "stream", "--data", "synthetic:syn1a,syn2b", "--frames", "4", "--size", "96x72", "--methods",
+            "plain,pcreg", "--out", str(out)]
+    assert main(args) == 0
+    capsys.readouterr()
+    assert main([*args, "--record", str(out / "all.rrd"), "--record-raw"]) == 0
+    err = capsys.readouterr().err
+    assert f"every unit is already done, so nothing is recorded and {out / 'all.rrd'} is not written" in err, err
+    assert not (out / "all.rrd").exists() and recordings(out) == []
+    (out / "units" / "syn1a_reference.json").unlink()  # as a stop after the first clip leaves it
+    assert main([*args, "--record", str(out / "rest.rrd"), "--record-raw"]) == 0
+    err = capsys.readouterr().err
+    assert f"{out / 'rest.rrd'} records the 1 unit(s) this run runs: the 1 an earlier run finished are not in it" in err
+    assert ended(out / "rest.rrd") and recordings(out) == ["rest.rrd"]
+    frames = pcreg.synthetic("syn1a", 4, 0, width=96, height=72)
+    np.testing.assert_array_equal(image(read_recording(out / "rest.rrd").moving(0)), frames[1].image)
+
+
 def test_the_confidence_check_says_the_error_rate_and_the_share_of_the_errors():
     """The check read "carry at most a third of the error" while it compared error rates: 0.383 of the rate is
     0.306 of the errors (80% of the pixels), which the line now says beside it."""

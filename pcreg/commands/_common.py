@@ -299,7 +299,7 @@ def run_command(args: argparse.Namespace, config: Any, *, name: str, evaluate, w
         with open_recorder(args, name=f"pcreg evaluate {name}", layout=name) as rec:
             with make_executor(1 if recording else args.workers, scheduler=None if recording else args.scheduler) as ex:
                 results = evaluate(config, out=out, force=args.force, executor=ex, recorder=rec)
-        written = write_outputs(results, out, recording=getattr(args, "record", None))
+        written = write_outputs(results, out, recording=None if getattr(rec, "discarded", False) else getattr(args, "record", None))
     print(f"wrote {len(written)} files to {out}")
     print(printed((out / f"{name}_{config.backends[0]}.md").read_text()), end="")
     for table in (out / f"{t}.md" for t in also):

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import sys
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
@@ -356,7 +357,9 @@ def run_resumable(units: list, run_unit, *, store: "UnitStore | None", cfg_dict:
         if store is not None:
             store.save(unit.key, result)
 
-    if recorder.enabled:  # a recording is written by this process, its frames in order
+    if recorder.enabled and len(todo) < len(units):
+        _say_resumed_recording(recorder, ran=len(todo), finished=len(units) - len(todo))
+    if recorder.enabled and todo:  # a recording is written by this process, its frames in order
         recorder.log_config(cfg_dict)
         run_units(partial(run_unit, recorder=recorder, frame_counter=[0]), todo, executor=InlineExecutor(), desc=desc,
                   on_result=keep, show_progress=show_progress)
@@ -366,6 +369,21 @@ def run_resumable(units: list, run_unit, *, store: "UnitStore | None", cfg_dict:
         run_units(run_unit, todo, executor=executor or InlineExecutor(), desc=desc, on_result=keep,
                   show_progress=show_progress)
     return done, len(units) - len(todo)
+
+
+def _say_resumed_recording(recorder, *, ran: int, finished: int) -> None:
+    """Say on stderr what the recording of a resumed evaluation holds: the ``ran`` units this run runs, not the
+    ``finished`` ones an earlier run kept. With none to run it is not written (:meth:`Recorder.discard`): a
+    recording of no unit would look like the evaluation's own, as :func:`pcreg.runs.records.nothing_to_record` says
+    of ``pcreg run``."""
+    again = "--force runs every unit again and records them"
+    if ran:
+        sys.stderr.write(f"pcreg: note: {recorder.path} records the {ran} unit(s) this run runs: the {finished} an "
+                         f"earlier run finished are not in it ({again})\n")
+        return
+    sys.stderr.write(f"pcreg: note: every unit is already done, so nothing is recorded and {recorder.path} is not "
+                     f"written ({again})\n")
+    recorder.discard()
 
 
 def for_workers(config: Any) -> Any:

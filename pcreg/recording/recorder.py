@@ -205,9 +205,7 @@ class Recorder(RecorderProtocol):
         if isinstance(exc, PcregError) and self.sink.frame is None and not self.closed:
             # bad input found before any work (a --data folder that is not there): the recording would hold
             # nothing but the refusal and stand in the way of the corrected command
-            self.close()
-            self.path.unlink(missing_ok=True)
-            remove_made_folders(self.sink.made_folders)
+            self.discard()
             return False
         if exc is not None and not self.closed:
             text = "".join(traceback.format_exception_only(exc_type, exc)).strip()
@@ -223,6 +221,17 @@ class Recorder(RecorderProtocol):
             self.icp.send_kept(now=True)
         finally:
             self.sink.close()
+
+    def discard(self) -> None:
+        """Close the recording and remove its file and the folders made for it: a run that found nothing to record
+        (bad input before any work, or every unit already done) leaves no recording that looks like its own."""
+        self.close()
+        self.path.unlink(missing_ok=True)
+        remove_made_folders(self.sink.made_folders)
+        self.discarded = True
+
+    #: Whether :meth:`discard` removed the file.
+    discarded = False
 
     @property
     def closed(self) -> bool:

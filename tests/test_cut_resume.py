@@ -130,3 +130,64 @@ def test_a_key_folder_run_stopped_after_a_cut_resumes_as_the_whole_one(shared_da
     steps = [[timeless(line) for line in (run / "steps.jsonl").read_text().splitlines()]
              for run in (tmp_path / "whole", tmp_path / "cut")]
     assert steps[0] == steps[1] and [s["trust"]["cut"] for s in steps[0]] == [False] * 3 + [True] * 4
+
+
+def _camvid11_labels(shared_data, clip: str, t: int, shape) -> np.ndarray:
+    folder = shared_data / "camvid" / clip / "labels"
+    labels = cv2.imread(str(sorted(folder.iterdir())[t]), cv2.IMREAD_UNCHANGED)
+    return cv2.resize(labels, (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST)
+
+
+@pytest.mark.parametrize("classes", ["camvid11", "lagr"])
+def test_frames_between_key_frames_of_two_shots_report_the_labels_written(shared_data, tmp_path, classes):
+    """Key frames on each side of a scene cut (0001TP's frame 0, 0016E5's frame 2 of 4 spliced after it): each frame
+    between them said in ``steps.jsonl`` the backward pass's cut test (frames of the first shot "cut": true, those past
+    the cut false) and its predicted IoU, of classes the labels written did not hold. The line says the forward pass's
+    cut beside its fallback, ``cut`` true only where neither key frame's scene holds the frame, and the predicted IoU
+    of the labels written."""
+    import json
+
+    from PIL import Image
+
+    from pcreg.cli import main
+
+    images = _spliced(shared_data)
+    frames, keys = tmp_path / "frames", tmp_path / "keys"
+    frames.mkdir()
+    keys.mkdir()
+    for t, image in enumerate(images):
+        cv2.imwrite(str(frames / f"f{t}.png"), cv2.resize(image, (240, 180), interpolation=cv2.INTER_AREA)[:, :, ::-1])
+    for t, (clip, at) in {0: ("0001TP", 0), 6: ("0016E5", 2)}.items():
+        labels = _camvid11_labels(shared_data, clip, at, (180, 240))
+        if classes == "lagr":
+            from pcreg.classes.mappings import mapping_lut
+
+            labels = mapping_lut("camvid")[labels]
+        cv2.imwrite(str(keys / f"f{t}.png"), labels)
+    out = tmp_path / "out"
+    assert main(["run", str(frames), "--labels", str(keys), "--classes", classes, "--out", str(out)]) == 0
+    steps = {s["name"]: s for s in map(json.loads, (out / "steps.jsonl").read_text().splitlines())}
+    unknown = 11 if classes == "camvid11" else 2
+    for t in range(1, 6):
+        step = steps[f"f{t}.png"]
+        assert step["forward"]["cut"] == (t >= 4) and step["trust"]["cut"] is False, (t, step["trust"], step["forward"])
+        held = {int(c) for c in np.unique(np.asarray(Image.open(out / f"f{t}.png")))} - {unknown}  # a palette PNG's ids
+        assert {int(k) for k in step["predicted_iou"]} == held, t
+
+
+def test_a_frame_between_key_frames_in_neither_scene_is_marked_as_a_cut_is():
+    """A frame both passes' cut tests found outside their key frame's scene (a third shot between the key frames'):
+    its confidence is the least, as a stream's after a cut (the labels are read as before); found by one pass only,
+    the confidence is read as it was."""
+    from pcreg.pipeline.engine import two_sided
+    from pcreg.pipeline.trust import STREAM_TRUST, least_confidence
+
+    rng = np.random.default_rng(1)
+    d, earlier, later = (rng.normal(0, 2, (60, 80)).astype(np.float32) for _ in range(3))
+    plain = two_sided(d, earlier, later, STREAM_TRUST)
+    one = two_sided(d, earlier, later, STREAM_TRUST, cuts=(True, False))
+    both = two_sided(d, earlier, later, STREAM_TRUST, cuts=(True, True))
+    for read in (one, both):
+        np.testing.assert_array_equal(read[0], plain[0])
+    np.testing.assert_array_equal(one[1], plain[1])
+    assert plain[1].min() < 0.9 < plain[1].max() and np.all(both[1] == least_confidence(2)) and least_confidence(2) == 0.5

@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
 
+import pcreg
 from pcreg import ICPOptions
 from pcreg import transforms as tf
 from pcreg.errors import RegistrationError
@@ -488,3 +489,47 @@ def test_a_3d_affine_step_needs_four_pairs():
     np.testing.assert_array_equal(r.matrix, np.eye(4))
     assert not r.converged and r.iterations == 0
     assert "too few" in rank_problem(target[:3], "affine")
+
+
+def _turned_about_x(angle: float) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec([angle, 0.0, 0.0]).as_matrix()
+    return T
+
+
+@pytest.mark.parametrize("backend", ["reference", "open3d"])
+def test_a_rigid_result_whose_pairs_all_lie_on_one_target_line_is_refused(backend):
+    """An L-shaped source whose x arm alone reaches the target (turned 17 degrees about that arm; the rest of the
+    target beyond the correspondence distance): both clouds determine a rotation, the pairs at the result do not.
+    Both backends returned the identity from the identity and a 126-degree turn from another start, each converged
+    with the same fitness and inlier RMSE, nothing to tell them apart. With the gate wide enough to pair the whole
+    target the same clouds give a rotation, not refused."""
+    xs = np.linspace(0, 10, 101)
+    arm = np.column_stack([xs, 0 * xs, 0 * xs])
+    source = np.vstack([arm, np.column_stack([np.zeros(50), np.linspace(0.2, 5, 50), np.zeros(50)])])
+    far = np.random.default_rng(3).uniform(-1, 1, (50, 3)) + [5, 20, 20]
+    target = np.vstack([tf.apply(_turned_about_x(0.3), arm), far])
+    for start in (np.eye(4), _turned_about_x(2.5)):
+        with pytest.raises(RegistrationError, match=r"at the result the 10\d pair\(s\) within the correspondence distance "
+                                                    r"0.5 leave the rotation undetermined \(their target points are collinear"):
+            pcreg.icp(source, target, pcreg.ICPOptions(backend=backend, max_correspondence_distance=0.5), init=start)
+    turned = np.vstack([tf.apply(_turned_about_x(0.3), source), far])
+    fit = pcreg.icp(source, turned, pcreg.ICPOptions(backend=backend, max_correspondence_distance=1.0))
+    np.testing.assert_allclose(fit.matrix, _turned_about_x(0.3), atol=1e-9)
+
+
+def test_a_line_thin_enough_to_pass_as_a_cloud_is_refused_at_the_result():
+    """A line 10 long and 1e-7 thick passes the clouds' own check (more than 1e-9 of its length across); Open3D's
+    step turned it half about itself, converged, fitness 1. Its pairs' cross-covariance has rank 1: refused."""
+    rng = np.random.default_rng(5)
+    source = np.column_stack([np.linspace(-5, 5, 100), rng.normal(0, 1e-7, 100), rng.normal(0, 1e-7, 100)])
+    from scipy.spatial.transform import Rotation
+
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec([0.0, 0.0, 0.05]).as_matrix()
+    T[:2, 3] = 0.1, 0.2
+    for backend in ("reference", "open3d"):
+        with pytest.raises(RegistrationError, match=r"leave the rotation undetermined \(their cross-covariance has rank 1"):
+            pcreg.icp(source, tf.apply(T, source), pcreg.ICPOptions(backend=backend, max_correspondence_distance=1.0))

@@ -45,8 +45,12 @@ def test_a_smooth_prior_and_frame_are_kept_smaller(tmp_path):
     kept.write_frame(tmp_path, 3, image)
     assert (tmp_path / "prior-3.kept").stat().st_size < 0.5 * (prior.nbytes + 2 * 160 * 120)
     assert (tmp_path / "frame-3.kept").stat().st_size < 0.5 * image.nbytes
-    p, fallback, w = kept.read_prior(tmp_path, 3)
-    assert p.tobytes() == prior.tobytes() and not fallback and w is not None
+    p, fallback, w, cut = kept.read_prior(tmp_path, 3)
+    assert p.tobytes() == prior.tobytes() and not fallback and w is not None and not cut
+    kept.write_prior(tmp_path, 4, prior, False, cut=True)
+    assert kept.read_prior(tmp_path, 4)[3] is True
+    (tmp_path / "prior-5.kept").write_bytes(kept.pack({"prior": prior, "fallback": np.asarray(True)}))  # kept before
+    assert kept.read_prior(tmp_path, 5)[1:] == (True, None, False)
     assert kept.read_frame(tmp_path, 3).tobytes() == image.tobytes()
 
 

@@ -329,17 +329,18 @@ class KeyRun:
                 prior = report.trust.prior_term(report.log_odds.shape)  # made smaller on the writer's thread
                 weight = None if prop.classes is None else weight_sum(report.trust)
                 writer.submit(self._keep_prior, cur, t, prior, bool(report.fallback), prop.carry,
-                              prop.learned_later(), weight, prop.scene)
+                              prop.learned_later(), weight, prop.scene, cut=_cut(report))
                 if self.on_step is not None:
                     self.on_step()
 
     def _keep_prior(self, cur: dict, t: int, prior: np.ndarray, fallback: bool, carry, learned,
-                    weight: np.ndarray | None = None, scene=None) -> None:
+                    weight: np.ndarray | None = None, scene=None, *, cut: bool = False) -> None:
         """Frame ``t`` of a forward pass between two key frames: its prior term (with many classes also its
-        summed trust weight, for the class window) kept for the backward pass as :data:`PRIOR_STORE_DTYPE`, the
-        propagator's carry, and the commit (:func:`~pcreg.runs.kept.write_prior`)."""
+        summed trust weight, for the class window) kept for the backward pass as :data:`PRIOR_STORE_DTYPE`, with
+        whether its cut test found the frame in another scene, the propagator's carry, and the commit
+        (:func:`~pcreg.runs.kept.write_prior`)."""
         write_prior(self._hidden(cur["fingerprint"]), t, prior.astype(PRIOR_STORE_DTYPE), fallback,
-                    None if weight is None else weight.astype(PRIOR_STORE_DTYPE), compress=self.compress)
+                    None if weight is None else weight.astype(PRIOR_STORE_DTYPE), compress=self.compress, cut=cut)
         self._keep_carry(cur, carry, learned, scene)
         cur["next"] = t + 1
         cur["fallbacks"] += int(fallback)
@@ -349,7 +350,6 @@ class KeyRun:
         """From the later key frame back to the stretch's first frame; between two key frames, each frame
         fuses the forward pass's prior term too."""
         from ..outputs import WriteBehind
-        from .trust import predicted_error
 
         b = s.last
         assert b is not None
@@ -368,14 +368,17 @@ class KeyRun:
                 step = report.to_dict()
                 conf = report.confidence
                 if priors is not None:
-                    p_a, fallback, w_a = priors.pop(t)
+                    p_a, fallback, w_a, cut_a = priors.pop(t)
                     d = report.log_odds
                     weights = None if w_a is None else (w_a.astype(np.float32), weight_sum(report.trust))
-                    labels, conf, _ = two_sided(d, p_a, report.trust.prior_term(d.shape), prop.trust,
-                                                size=prop.working_size, classes=prop.class_read, weights=weights)
+                    cuts = (cut_a, _cut(report))
+                    labels, conf, second = two_sided(d, p_a, report.trust.prior_term(d.shape), prop.trust,
+                                                     size=prop.working_size, classes=prop.class_read, weights=weights,
+                                                     cuts=cuts)
                     labels, conf, at = kept_between(prop.bars, getattr(image, "rgb", image), labels, conf)
+                    step.update(between(step, prop.class_iou(labels[at], conf[at], None if second is None else second[at]),
+                                        conf[at], fallback, cuts))
                     labels = prop.table_labels(labels)  # two known classes in other ids than lagr's: the table's
-                    step.update(predicted_error=predicted_error(conf[at]), forward={"fallback": fallback})
                 self._record(writer, s, cur, t, image, labels, conf, step, prop, clf, after=t - 1,
                              reference=references.of(report))
                 references.stepped(report, image)
@@ -485,6 +488,24 @@ class Decoded:
         if self._reading is not None:
             self._reading.close()  # type: ignore[attr-defined]
         self._reading, self._kept = None, []
+
+
+def _cut(report) -> bool:
+    """Whether a pass's step found its frame outside its key frame's scene (:mod:`pcreg.pipeline.cuts`)."""
+    return bool((report.trust_summary or {}).get("cut", False))
+
+
+def between(step: dict, iou: dict, confidence: np.ndarray, fallback: bool, cuts: tuple[bool, bool]) -> dict:
+    """What a frame between two key frames changes of its backward pass's ``step`` line: the predicted error and
+    each class's predicted IoU (``iou``) of the labels written (``confidence`` of their picture), the forward pass's
+    fallback and cut, and ``cut`` true only where both passes found the frame outside their key frame's scene."""
+    from .trust import predicted_error
+
+    trust = step.get("trust")
+    if trust is not None and "cut" in trust:
+        trust = {**trust, "cut": cuts[0] and cuts[1]}
+    return {"predicted_error": predicted_error(confidence), "predicted_iou": {str(k): v for k, v in iou.items()},
+            "trust": trust, "forward": {"fallback": fallback, "cut": cuts[0]}}
 
 
 def _takes_reference(on_frame: Callable) -> bool:

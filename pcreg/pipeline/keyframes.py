@@ -64,9 +64,9 @@ class LabelledFrame:
 
 def _pass(make: Callable, key_image, key_labels, images: Callable[[int], np.ndarray], order) -> tuple[dict, Any]:
     """One direction, by :func:`~pcreg.pipeline.engine.propagate`: ``{t: (log_odds, prior_term, labels,
-    confidence, class weights, bars)}`` along ``order`` from the key frame (the first two at the propagator's working
-    size; ``bars`` the key frame's black bars where the frame shows them, :mod:`pcreg.pipeline.bars`, else None),
-    and the propagator."""
+    confidence, class weights, bars, cut)}`` along ``order`` from the key frame (the first two at the propagator's
+    working size; ``bars`` the key frame's black bars where the frame shows them, :mod:`pcreg.pipeline.bars`, else
+    None; ``cut`` whether the cut test found the frame outside the key frame's scene), and the propagator."""
     from .engine import propagate
     from .multiclass import weight_sum
 
@@ -77,7 +77,8 @@ def _pass(make: Callable, key_image, key_labels, images: Callable[[int], np.ndar
         d, maps = prop.last.log_odds, prop.last.trust
         out[t] = (d, maps.prior_term(d.shape), labels, prop.last.confidence,
                   None if prop.classes is None else weight_sum(maps),
-                  prop.bars if prop.bars is not None and prop.bars.held(image) else None)
+                  prop.bars if prop.bars is not None and prop.bars.held(image) else None,
+                  bool((prop.last.trust_summary or {}).get("cut", False)))
     return out, prop
 
 
@@ -140,13 +141,13 @@ def label_clip(images: Callable[[int], np.ndarray], n: int, keys: Mapping[int, n
             bwd = fwd
         for t in s.frames:
             if len(s.keys) == 1:
-                _, _, labels, conf, _, bars = bwd[t]
+                _, _, labels, conf, _, bars, _ = bwd[t]
             else:  # as pcreg run's backward pass between two key frames
                 assert prop is not None
-                d, p_a, _, _, w_a, _ = fwd[t]
+                d, p_a, _, _, w_a, _, cut_a = fwd[t]
                 labels, conf, _ = two_sided(d, p_a, bwd[t][1], prop.trust, size=prop.working_size,
-                                            classes=prop.class_read,
-                                            weights=None if w_a is None else (w_a, bwd[t][4]))
+                                            classes=prop.class_read, weights=None if w_a is None else (w_a, bwd[t][4]),
+                                            cuts=(cut_a, bwd[t][6]))
                 bars = bwd[t][5]
                 labels, conf = (labels, conf) if bars is None else bars.maps(labels, conf)  # a letterbox's bars kept
             at = (slice(None), slice(None)) if bars is None else bars.picture  # what the predicted error is of

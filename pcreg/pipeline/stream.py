@@ -402,6 +402,13 @@ class Propagator(OneStream):
                                                                            self._ids)))
         return self.table_labels(labels)
 
+    def class_iou(self, labels: np.ndarray, confidence: np.ndarray, second: np.ndarray | None) -> dict[int, float]:
+        """Each class's predicted IoU of ``labels`` read another way than a step reads them (between two key frames),
+        by the table's ids (:func:`~pcreg.pipeline.trust.class_predicted_iou`; ``labels`` in the step's ids)."""
+        from .trust import class_predicted_iou
+
+        return class_predicted_iou(labels, confidence, second, self._ids)
+
     def table_labels(self, labels: np.ndarray) -> np.ndarray:
         """The two-class step's ``labels`` (0, 1; 2 unknown) in the classifier's class table's ids: themselves, but
         for a table of two known classes in other ids (:func:`~pcreg.classes.keys.lagr_ids`), whose labels the step

@@ -43,7 +43,7 @@ from .readout import scaled as _scaled
 from .working import WorkingSize
 
 __all__ = ["TrustRule", "STREAM_TRUST", "CLASS_TRUST", "CONFIDENCE_COEFFICIENTS", "TrustMaps", "carried_residual", "carried_log_odds",
-           "residual_trust", "TrustedKey", "Trusted", "smoothed", "read_labels",
+           "residual_trust", "TrustedKey", "Trusted", "smoothed", "read_labels", "least_confidence",
            "trust_maps", "fused_log_odds", "confidence_features", "label_confidence", "predicted_error", "least_confident"]
 
 #: Blurs (px at :data:`BASE_WIDTH`): of both images before comparing, and of the residual after.
@@ -350,14 +350,16 @@ def label_confidence(fused: np.ndarray, log_odds: np.ndarray, prior_term: np.nda
 
 def least_confident(trusted: "Trusted", n_classes: int) -> "Trusted":
     """``trusted`` with the same labels and every confidence the least a stream of ``n_classes`` classes gives
-    (:data:`MIN_CONFIDENCE`; with more classes the larger of 1/K and
-    :data:`~pcreg.pipeline.multiclass.CLASS_MIN_CONFIDENCE`): a step whose confidence model does not hold
-    (a scene cut, :mod:`pcreg.pipeline.cuts`; a degenerate classifier,
-    :meth:`~pcreg.classification.bayes.NaiveBayesPixelClassifier.degenerate_classes`) vouches for nothing."""
+    (:func:`least_confidence`): a step whose confidence model does not hold (a scene cut, :mod:`pcreg.pipeline.cuts`;
+    a degenerate classifier, :meth:`~pcreg.classification.bayes.NaiveBayesPixelClassifier.degenerate_classes`)."""
+    return replace(trusted, confidence=np.full(trusted.confidence.shape, least_confidence(n_classes), np.float32))
+
+
+def least_confidence(n_classes: int) -> float:
+    """The least confidence of a stream of ``n_classes``: :data:`MIN_CONFIDENCE`, with more the larger of 1/K and CLASS_MIN_CONFIDENCE."""
     from .multiclass import CLASS_MIN_CONFIDENCE
 
-    least = MIN_CONFIDENCE if n_classes <= 2 else max(1.0 / n_classes, CLASS_MIN_CONFIDENCE)
-    return replace(trusted, confidence=np.full(trusted.confidence.shape, least, np.float32))
+    return MIN_CONFIDENCE if n_classes <= 2 else max(1.0 / n_classes, CLASS_MIN_CONFIDENCE)
 
 
 def class_predicted_iou(labels: np.ndarray, confidence: np.ndarray, second: np.ndarray | None,

@@ -531,6 +531,27 @@ def check_rotation_pairs(fitness: float, source_points: int, model: str, d: int,
         "max_correspondence_distance)")
 
 
+def check_paired_rotation(T: np.ndarray, source: np.ndarray, target: np.ndarray, max_distance: float) -> None:
+    """Raise when a rigid point-to-point ICP's result ``T`` (``T_target_source``) is held by pairs that leave its
+    rotation undetermined (:func:`rotation_problem`: in 3-D, the target points the moved source points match,
+    nearest and closer than ``max_distance``, on one line, or a cross-covariance of rank 1). The clouds themselves
+    may determine it: an L-shaped source whose one arm alone reaches the target (the rest beyond the distance) came
+    back turned 17 or 126 degrees about that arm from two starts, each converged with the same fitness and inlier
+    RMSE; a line 1e-7 thick and 10 long, a half turn off with Open3D's step."""
+    from .kdtree import KDTreeIndex
+    from .transforms import apply as move
+
+    moved = move(T, source)
+    _, idx = KDTreeIndex(target).nearest(moved, max_distance)
+    paired = idx >= 0
+    problem = rotation_problem(moved[paired], target[idx[paired]])
+    if problem is not None:
+        raise RegistrationError(
+            f"registration refused: at the result the {int(paired.sum())} pair(s) within the correspondence distance "
+            f"{max_distance:g} leave the rotation undetermined ({problem}); give an init nearer the answer, or a larger "
+            "max_correspondence_distance")
+
+
 def check_support(T: np.ndarray, source: np.ndarray, target: np.ndarray, max_distance: float, model: str, *,
                   converged: bool) -> None:
     """Raise when an ICP's result ``T`` (``T_target_source``) of a ``model`` that can shrink the source

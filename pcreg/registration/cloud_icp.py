@@ -14,7 +14,7 @@ from ..errors import InputError, RegistrationError
 from ..validation import check_callable, check_matrix, short_repr
 from .icp_options import METRICS, WEIGHTS, ICPOptions, VoxelSchedule, refuse_a_line_for_open3d
 from .inputs import check_cloud
-from .closed_forms import check_rotation_pairs
+from .closed_forms import check_paired_rotation, check_rotation_pairs
 from .reference import LINEARISED_METRICS, check_paired_normals, check_progress, check_rank, check_support, scores_at
 from .result import IcpIteration, RegistrationResult
 from .steps import BACKENDS, IcpSettings, StepCall, icp_step, refuse_for_open3d
@@ -182,20 +182,44 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, options: ICPOption
             total_iter = -1 if (r.iterations < 0 or total_iter < 0) else total_iter + r.iterations
         seconds = time.perf_counter() - start
         if r.fitness == 0:  # as Open3D, no pair moved nothing: a transform no point supports is no registration
-            where = ("the ICP stopped where it started" if np.array_equal(T, start_pose) else
-                     "the ICP moved the source away from the target (its steps diverged)")
-            raise RegistrationError(f"registration refused: no source point lies within the correspondence distance "
-                                    f"{schedule[-1][2]:g} of a target point; {where} (give an init "
-                                    "that brings the clouds together, or a larger max_correspondence_distance)")
-        check_support(T, s, t, d, options.model, converged=r.converged is not False)  # the last scale's clouds
-        # a run stopped by its iterations took steps all the same (Open3D's takes one on any pairs): judged as one that ended
-        stepped = r.converged is not False or not np.array_equal(T, scale_start)
-        check_rotation_pairs(r.fitness, len(s), options.model, dim, d, converged=stepped, metric=options.metric)
+            _refuse_unpaired(np.array_equal(T, start_pose), schedule[-1][2], options, tgt)
+        _check_result(T, r, (s, t, d), options, moved=not np.array_equal(T, scale_start))  # the last scale's clouds
         if first is not None:  # one scale: a linearised metric takes no schedule
             check_progress(first, r, d, options.metric)
             check_paired_normals(T, s, t, target_normals, d, options.metric)
         return RegistrationResult(matrix=T, fitness=r.fitness, inlier_rmse=r.inlier_rmse, iterations=total_iter,
                                   converged=r.converged, backend=options.backend, seconds=seconds)
+
+
+def _refuse_unpaired(stayed: bool, distance: float, options: ICPOptions, target: np.ndarray) -> None:
+    """Refuse a result with no pair within the correspondence ``distance``: the run ``stayed`` where it started, or
+    moved the source away. Open3D's point-to-plane step linearises the rotation about the origin: a run on clouds
+    further from it than they are across (an ellipsoid 2 across, 90 from it) diverges where the reference's, which
+    linearises about the pairs' mean there, does not; the refusal says so rather than ask for a nearer init."""
+    where = "the ICP stopped where it started" if stayed else "the ICP moved the source away from the target (its steps diverged)"
+    hint = " (give an init that brings the clouds together, or a larger max_correspondence_distance)"
+    centre, across = target.mean(axis=0), float(np.linalg.norm(np.ptp(target, axis=0)))
+    if not stayed and options.backend == "open3d" and options.metric == "point_to_plane" and np.linalg.norm(centre) > across:
+        hint = (f": Open3D's point-to-plane step linearises the rotation about the origin, {np.linalg.norm(centre):.3g} from "
+                f"these clouds ({across:.3g} across); backend='reference' linearises about their mean, or move the clouds "
+                "to the origin")
+    raise RegistrationError(f"registration refused: no source point lies within the correspondence distance {distance:g} "
+                            f"of a target point; {where}{hint}")
+
+
+def _check_result(T: np.ndarray, r, scale: tuple, options: ICPOptions, *, moved: bool) -> None:
+    """Refuse a result ``T`` (the run's last result ``r``) that its last ``scale``'s clouds and correspondence distance
+    do not determine: a shrinking model's collapse (:func:`~.closed_forms.check_support`), a rigid rotation on too few
+    pairs (:func:`~.closed_forms.check_rotation_pairs`) or, in 3-D, on pairs that leave it free
+    (:func:`~.closed_forms.check_paired_rotation`). A run stopped by its iterations that ``moved`` the source at that
+    scale took steps all the same (Open3D's takes one on any pairs): it is judged as one that ended."""
+    s, t, d = scale
+    dim = s.shape[1]
+    check_support(T, s, t, d, options.model, converged=r.converged is not False)
+    stepped = r.converged is not False or moved
+    check_rotation_pairs(r.fitness, len(s), options.model, dim, d, converged=stepped, metric=options.metric)
+    if stepped and dim == 3 and options.model == "rigid" and options.metric == "point_to_point":
+        check_paired_rotation(T, s, t, d)
 
 
 def _check_icp_options(options: ICPOptions, dim: int, target_normals) -> None:

@@ -122,27 +122,28 @@ def _reading(path: Path) -> Iterator[None]:
 
 
 def write_prior(folder: Path, t: int, prior: np.ndarray, fallback: bool, weight: np.ndarray | None = None, *,
-                compress: bool = True) -> None:
-    """Frame ``t``'s prior term (float16; with many classes also its summed trust weight, float16) and whether
-    its step fell back, atomically in ``folder``, compressed or not (:func:`pack`)."""
+                compress: bool = True, cut: bool = False) -> None:
+    """Frame ``t``'s prior term (float16; with many classes also its summed trust weight, float16), whether
+    its step fell back and whether its cut test found it outside the key frame's scene, atomically in ``folder``,
+    compressed or not (:func:`pack`)."""
     from ..outputs import atomic_write_bytes
 
-    kept = {"prior": prior, "fallback": np.asarray(fallback)}
+    kept = {"prior": prior, "fallback": np.asarray(fallback), "cut": np.asarray(cut)}
     if weight is not None:
         kept["weight"] = weight
     atomic_write_bytes(folder / PRIOR.format(t), pack(kept, compress=compress))
 
 
-def read_prior(folder: Path, t: int) -> tuple[np.ndarray, bool, np.ndarray | None]:
-    """``(prior, fallback, weight)`` :func:`write_prior` kept for frame ``t`` (or an earlier version's
-    ``prior-N.npz``); ``weight`` None with two classes."""
+def read_prior(folder: Path, t: int) -> tuple[np.ndarray, bool, np.ndarray | None, bool]:
+    """``(prior, fallback, weight, cut)`` :func:`write_prior` kept for frame ``t`` (or an earlier version's
+    ``prior-N.npz``); ``weight`` None with two classes, ``cut`` False where an earlier version kept none."""
     path, old = folder / PRIOR.format(t), folder / OLD_PRIOR.format(t)
     if not path.is_file() and old.is_file():
         with _reading(old), np.load(old, allow_pickle=False) as z:
-            return z["prior"], bool(z["fallback"]), z["weight"] if "weight" in z.files else None
+            return z["prior"], bool(z["fallback"]), z["weight"] if "weight" in z.files else None, False
     with _reading(path):
         z = unpack(path.read_bytes())
-        return z["prior"], bool(z["fallback"]), z.get("weight")
+        return z["prior"], bool(z["fallback"]), z.get("weight"), bool(z.get("cut", False))
 
 
 def write_frame(folder: Path, t: int, image: np.ndarray, *, compress: bool = True) -> None:

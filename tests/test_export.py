@@ -421,6 +421,54 @@ def test_export_and_view_say_when_the_run_has_not_labelled_every_frame_it_chose(
     assert "5 frame(s)" in said.out and "unfinished" not in said.out + said.err
 
 
+def test_export_and_view_say_when_a_video_run_is_unfinished_or_being_written(tmp_path, monkeypatch, capsys):
+    """A video's frames are not counted ahead (its container's count is no fact), and the note that a run is unfinished
+    or being written was said of a frames folder only: a video run stopped, or exported while it ran, gave a partial
+    archive and review without a word. run.json says whether decoding found the end of the frames (from one label
+    image) or a stretch is under way (from key frames); the lock, whether a run writes the folder now."""
+    from pcreg.outputs import OutputLock
+    from _runs import kill_at_commit, kill_before_commit, video_and_keys
+
+    _, video, keys = video_and_keys(tmp_path, 6, (0, 3))
+    one, stretches = tmp_path / "one", tmp_path / "stretches"
+    command = {one: ["run", str(video), "--labels", str(keys / "000000.png"), "--out", str(one)],
+               stretches: ["run", str(video), "--labels", str(keys), "--out", str(stretches)]}
+    kill_before_commit(monkeypatch, 4)
+    assert main(command[one]) == 130
+    monkeypatch.undo()
+    kill_at_commit(monkeypatch, 2, "store")  # the video's frames decoded for the stretch's passes
+    assert main(command[stretches]) == 130
+    monkeypatch.undo()
+    for out in (one, stretches):
+        capsys.readouterr()
+        assert main(["export", str(out)]) == 0
+        err = capsys.readouterr().err
+        assert f"pcreg: note: {out} holds " in err and "of a video, which the run did not label to its end: it is " \
+            "unfinished (the same pcreg run command goes on from where it stopped)" in err, err
+        assert main(command[out]) == 0
+        with OutputLock(out):  # as while a run writes it
+            assert main(["view", str(out), "--overlay", str(tmp_path / f"{out.name}.mp4")]) == 0
+        err = capsys.readouterr().err
+        assert f"pcreg: note: {out} holds 6 frame(s) of a video: a pcreg run (pid " in err, err
+        assert main(["export", str(out), "--force"]) == 0
+        assert "pcreg: note" not in capsys.readouterr().err  # finished: no note
+
+
+def test_a_run_stopped_before_its_first_frame_is_said_so_by_every_reader(tmp_path, capsys):
+    """A run stopped before its run.json was written (its steps.jsonl made, no frame labelled): export said "no
+    run.json, so not the output of pcreg run", view --web "no results.json here (an evaluation's output folder)"."""
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "steps.jsonl").write_bytes(b"")
+    for command in (["export", str(out)], ["view", str(out), "--web"], ["view", str(out), "--overlay", str(tmp_path / "o.mp4")]):
+        assert main(command) == 2
+        assert capsys.readouterr().err == (f"pcreg: error: {out}: a pcreg run stopped there before it labelled its first "
+                                           "frame (no run.json yet): the same pcreg run command starts it\n"), command
+    (out / "steps.jsonl").unlink()
+    assert main(["export", str(out)]) == 2
+    assert capsys.readouterr().err == f"pcreg: error: {out}: no run.json, so not the output of pcreg run\n"
+
+
 def _frames_then(monkeypatch, then):
     """pcreg.export.labelled_frames, each frame passed on after ``then(index)`` is called."""
     import pcreg.export

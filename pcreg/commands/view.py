@@ -130,8 +130,8 @@ def run(args: argparse.Namespace) -> int:
     from ..recording import viewer as V
     from ..recording.readback import unfinished_note
     from ..recording.staging import stage
-
     from ..review import is_run
+    from ..runs.state import no_run
 
     runs = [p for p in args.recordings if Path(p).is_dir() and is_run(p)]
     _choose_ports(args, grpc=not runs)  # a run's review page has no recording server
@@ -142,7 +142,7 @@ def run(args: argparse.Namespace) -> int:
         if damaged is not None:  # a run's folder whose run.json is damaged: named, as the review names it
             raise InputError(f"{damaged}: unreadable (not a run.json that pcreg run wrote)")
         first = Path(args.recordings[0])
-        raise InputError(f"{first}: no run.json, so not the output of pcreg run, which --overlay takes" if first.is_dir()
+        raise InputError(no_run(first, ", which --overlay takes") if first.is_dir()
                          else f"{first}: not a folder; --overlay takes the output folder of pcreg run")
     folders = [p for p in args.recordings if Path(p).is_dir() or Path(p).name == "results.json"]
     if folders:

@@ -341,13 +341,24 @@ def write_state(out: Path, state: dict) -> None:
     atomic_write_json(out / STATE, state)
 
 
+def no_run(folder: Path, takes: str = "") -> str:
+    """What a reader of a run says of a ``folder`` without run.json (``takes``: what the command takes, after a comma):
+    a run stopped before it labelled its first frame, where its steps.jsonl is there already and empty (the same command
+    starts it), else no run's output."""
+    steps = folder / STEPS
+    if steps.is_file() and steps.stat().st_size == 0:
+        return (f"{folder}: a pcreg run stopped there before it labelled its first frame (no {STATE} yet): the same pcreg "
+                "run command starts it")
+    return f"{folder}: no {STATE}, so not the output of pcreg run{takes}"
+
+
 def read_state(folder: Path) -> dict:
     """The run.json of a finished or stopped run in ``folder``, for a reader: an
     :class:`~pcreg.errors.InputError` naming the file when there is none (not a run's output) or it is not
     one pcreg run wrote."""
     state_path = folder / STATE
     if not state_path.is_file():
-        raise InputError(f"{folder}: no {STATE}, so not the output of pcreg run")
+        raise InputError(no_run(folder))
     try:
         state = loads_json(state_path.read_text(encoding="utf-8"), keys_once=True)
     except KeyWrittenTwice as exc:  # edited by hand: pcreg run writes each key once
@@ -497,12 +508,35 @@ def unfinished_note(folder: Path, labelled: int, chosen: int | None) -> str | No
     it labelled them all or the count is not known."""
     from ..outputs import writer_of
 
-    if chosen is None or labelled >= chosen:
+    if chosen is None:  # a video: how many frames it holds is known once a run decoded it to their end
+        unfinished, holds = video_unfinished(folder), f"{folder} holds {labelled} frame(s) of a video"
+    elif labelled >= chosen:
         return None
+    else:
+        unfinished, holds = True, f"{folder} holds {labelled} of the {chosen} frames the run chose"
     writer = writer_of(folder)
     if writer is not None:
         who = f" (pid {writer})" if writer else ""
-        return (f"{folder} holds {labelled} of the {chosen} frames the run chose: a pcreg run{who} is "
-                "writing it now; what it labels later is not shown")
-    return (f"{folder} holds {labelled} of the {chosen} frames the run chose: it is unfinished "
-            "(the same pcreg run command goes on from where it stopped)")
+        return f"{holds}: a pcreg run{who} is writing it now; what it labels later is not shown"
+    if not unfinished:
+        return None
+    end = ", which the run did not label to its end" if chosen is None else ""
+    return f"{holds}{end}: it is unfinished (the same pcreg run command goes on from where it stopped)"
+
+
+def video_unfinished(folder: Path) -> bool | None:
+    """Whether the run of a video in ``folder`` stopped before the end of its frames, by its run.json (None without
+    one): a run from one label image keeps ``video_end`` once decoding found their end
+    (:func:`~pcreg.runs.video_file.labelled_to_end`); a run from key frames labels its stretches in order, the last
+    one the frames after its last key frame to the video's end (``stop`` None, none when that is the last frame), so
+    it is done once that one is and no other is under way (``cursor``)."""
+    from .video_file import labelled_to_end
+
+    try:
+        state = read_state(folder)
+    except InputError:
+        return None
+    if "done" in state:
+        return not labelled_to_end(state)
+    ended = any(isinstance(e, dict) and e.get("stop") is None for e in state.get("stretches") or ())
+    return state.get("cursor") is not None or not ended

@@ -246,3 +246,25 @@ def test_rows_whose_names_are_cut_are_told_apart_and_named_in_full_below():
     labels = [line[:24].rstrip() for line in lines[1:4]]
     assert labels == ["reference", 'cmd:"/opt/tools/i... [1]', 'cmd:"/opt/tools/i... [2]'], labels
     assert lines[-2:] == [f"[1] {one}", f"[2] {other}"], lines[-2:]
+
+
+def test_clouds_far_from_the_origin_for_their_size_agree_no_further_apart_than_objective_rows():
+    """800 points 1e-7 across, 1e7 from the origin, turned 31 degrees about their centroid: the step allowance for
+    coordinates far from the origin came to 0.65 relative, and KISS-ICP's row, which never moved, read "agrees" 31.5
+    degrees from the reference's. Such an allowance lets a row agree no further apart than an objective row may."""
+    pytest.importorskip("kiss_icp")
+    from scipy.spatial.transform import Rotation
+
+    from pcreg.implementations.compare import OBJECTIVE_ROTATION_DEG, _agrees
+
+    rng = np.random.default_rng(2)
+    source = rng.uniform(-1, 1, (800, 3)) * 1e-7 + 1e7
+    centre = source.mean(axis=0)
+    target = (source - centre) @ Rotation.from_rotvec([0.2, -0.3, 0.4]).as_matrix().T + centre + 2e-9
+    rows = crosscheck_implementations(source, target, implementations=["reference", "kiss-icp"],
+                                      options=ICPOptions(max_correspondence_distance=3e-7)).rows
+    assert rows["kiss-icp"]["rotation_disagreement_deg"] > 10 and rows["kiss-icp"]["agrees"] is False
+    close = {"pose_relative_disagreement": 0.3, "rotation_disagreement_deg": OBJECTIVE_ROTATION_DEG / 2,
+             "centroid_disagreement": 0.0, "scale_disagreement": 0.0}
+    assert _agrees("step", close, 1.0, step=0.65) and not _agrees("step", {**close, "rotation_disagreement_deg": 31.5},
+                                                                   1.0, step=0.65)

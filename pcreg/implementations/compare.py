@@ -189,10 +189,20 @@ def step_tolerance(points: np.ndarray, diag: float) -> float:
 
 
 def _agrees(comparability: str, cmp: dict, diag: float, step: float = STEP_TOLERANCE) -> bool:
+    """Whether a row's comparison ``cmp`` with its reference agrees, by its ``comparability``. The ``step`` allowance
+    of clouds far from the origin (:func:`step_tolerance`) grows without bound as the clouds' extent shrinks against
+    their coordinates (0.65 relative for clouds 1e-7 across, 1e7 away, where a row that never moved read "agrees",
+    31 degrees off): a step or fixed-point row agrees no further apart than an objective row may."""
+    if comparability in ("step", "fixed-point") and step > FIXED_POINT_TOLERANCE and not _objectively_close(cmp, diag):
+        return False
     if comparability == "step":
         return cmp["pose_relative_disagreement"] <= step
     if comparability == "fixed-point":
         return cmp["pose_relative_disagreement"] <= max(FIXED_POINT_TOLERANCE, step)
+    return _objectively_close(cmp, diag)
+
+
+def _objectively_close(cmp: dict, diag: float) -> bool:
     return (cmp["rotation_disagreement_deg"] <= OBJECTIVE_ROTATION_DEG
             and cmp["centroid_disagreement"] <= OBJECTIVE_TRANSLATION * diag
             and cmp["scale_disagreement"] <= OBJECTIVE_SCALE)

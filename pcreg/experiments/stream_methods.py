@@ -13,7 +13,7 @@ import numpy as np
 from .._progress import unit_step
 
 __all__ = ["METHODS", "PCREG_METHODS", "OBJECT_METHOD", "BASELINES", "PRESET_OF", "CONFIDENCE_LEVELS", "calibration_counts",
-           "calibration", "KeyPrior", "FixedPrior", "make_method", "Timed", "counted"]
+           "calibration", "KeyPrior", "FixedPrior", "make_method", "Timed", "counted", "kernels_ready"]
 
 #: Methods scored per frame, in table order.
 METHODS: tuple[str, ...] = ("plain", "unregistered", "pcreg", "pcreg_half", "pcreg_flow", "dense_key", "dense_previous",
@@ -160,7 +160,7 @@ class Timed:
 
     def __init__(self, labeller) -> None:
         self.labeller, self.seconds = labeller, 0.0
-        _kernels_ready()
+        kernels_ready()
 
     def step(self, image: np.ndarray) -> np.ndarray:
         t0 = time.perf_counter()
@@ -173,10 +173,11 @@ class Timed:
 _READY: list[bool] = []
 
 
-def _kernels_ready() -> None:
+def kernels_ready() -> None:
     """pcreg's compiled kernels compiled, or loaded from the cache, once in this process before a step is timed
     (:func:`pcreg.kernels.warm_up`): compiled within the first clip's steps, they read 1,819 ms a frame against
-    16.6 for the same clip again, and the median over few clips with them."""
+    16.6 for the same clip again, and the median over few clips with them (the key-frame and many-class protocols,
+    which time :func:`~pcreg.pipeline.keyframes.label_clip` whole, 819 ms against 148-247)."""
     if not _READY:
         from ..kernels import warm_up
 

@@ -18,7 +18,6 @@ frames between), and at once the next time the run is reviewed.
 
 from __future__ import annotations
 
-import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -31,6 +30,7 @@ from .validation import check_float
 from .formats import loads_json
 from .runs.files import StepTruth, finite_figure, step_class_iou
 from .legend import Legend, draw_legend, legend_figures
+from .review_frames import FrameImages
 
 __all__ = ["LOW_CONFIDENCE", "COLOURS", "ALPHA", "CACHE", "RunReview", "read_review", "overlay", "FrameImages", "video_frame", "write_overlay_video"]
 
@@ -346,153 +346,6 @@ def _frame_labels(review: RunReview, t: int, image: np.ndarray) -> tuple[np.ndar
     conf_path = review.confidence_path(t)
     conf = None if conf_path is None else read_confidence(conf_path, labels.shape, f"not a confidence map of {review.labels_path(t).name}'s")
     return labels, conf
-
-
-class FrameImages:
-    """The frames of a review's source, RGB, by position: a folder's read when asked for; a video's
-    decoded by a thread into ``cache`` (JPEG, one file a frame, kept for the next review), each asked for
-    waited for until the decoding reaches it (without ``cache``, a video is only read straight through,
-    by :meth:`frames`). The thread decodes in order from the first frame not cached; for a frame asked
-    for behind it, or far enough ahead (:attr:`JUMP`, :attr:`RATIO`), it starts again from the video's
-    start, converting nothing before that frame (FFmpeg's decoding alone); the frames passed over are
-    filled in afterwards. ``close()``
-    stops the thread; a context manager."""
-
-    #: A frame asked for ahead of the decoding is skipped to (decoding again from the start, converting
-    #: nothing before it) when that costs less than going on: converting a frame and encoding its JPEG take
-    #: about twice as long as decoding it (720p H.264: 4.7 ms to decode, 14.6 ms with both), so when the
-    #: frame is more than JUMP frames ahead and ``frame < RATIO * (frame - decoding)``.
-    JUMP = 8
-    RATIO = 3.0
-
-    def __init__(self, review: RunReview, cache: Path | None = None) -> None:
-        from .datasets.sources import FolderFrames, Selection, open_frames
-
-        self.review = review
-        sel = review.selection or {}
-        self._frames = open_frames(review.source, Selection(sel.get("start", 0), sel.get("stop"), sel.get("every", 1)))
-        self.where = self._frames.where if isinstance(self._frames, FolderFrames) else None  # frame t's file (None: a video's)
-        self._cond = threading.Condition()
-        self._stop = False
-        self._failed: str | None = None
-        self._thread: threading.Thread | None = None
-        self._wanted: int | None = None
-        self.cache = cache
-        if review.kind == "video" and cache is not None:
-            import os
-
-            cache.mkdir(parents=True, exist_ok=True)
-            there = set(os.listdir(cache))
-            self._have = [f"{s}.jpg" in there for s in review.stems]
-            self._thread = threading.Thread(target=self._decode, name="pcreg-review-decode", daemon=True)
-            self._thread.start()
-
-    def _path(self, t: int) -> Path:
-        assert self.cache is not None
-        return self.cache / f"{self.review.stems[t]}.jpg"
-
-    def _next_start(self) -> int | None:
-        """Where the decoding starts next: the frame asked for if it is not cached, else the first not
-        cached (None: all are)."""
-        with self._cond:
-            if self._wanted is not None and not self._have[self._wanted]:
-                return self._wanted
-            return next((t for t, have in enumerate(self._have) if not have), None)
-
-    def _decode(self) -> None:
-        import os
-
-        import cv2
-
-        n = len(self.review.names)
-        try:
-            while not self._stop:
-                first = self._next_start()
-                if first is None:
-                    return
-                decoded = self._frames.frames(first)
-                t = first - 1
-                try:
-                    for frame in decoded:
-                        t = frame.position
-                        if self._stop or t >= n:
-                            break
-                        if not self._have[t]:
-                            ok, buf = cv2.imencode(".jpg", frame.image[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, 92])
-                            path = self._path(t)
-                            tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-                            tmp.write_bytes(buf.tobytes())
-                            os.replace(tmp, path)
-                        with self._cond:
-                            self._have[t] = True
-                            self._cond.notify_all()
-                            w = self._wanted
-                            if w is not None and not self._have[w] and (
-                                    w < t or (w > t + self.JUMP and w < self.RATIO * (w - t))):
-                                break  # start again at the frame asked for
-                    else:
-                        if t < n - 1:  # the video ended before the run's frames did
-                            self._failed = f"{self.review.source}: ends before the run's frame {self.review.names[t + 1]}"
-                            return
-                finally:
-                    getattr(decoded, "close")()  # the generator's: the video file closed now
-        except (InputError, OSError) as exc:
-            self._failed = str(exc)
-        finally:
-            with self._cond:
-                self._stop = True
-                self._cond.notify_all()
-
-    def __getitem__(self, t: int) -> np.ndarray:
-        if not 0 <= t < len(self.review.names):
-            raise IndexError(t)
-        if self._thread is None:
-            from .registration.clouds import load_image_and_alpha
-
-            if self.where is None:
-                raise ValueError("a video's frames by position need a cache folder (or read them in order: frames())")
-            return load_image_and_alpha(self.where(t))[0]  # as load_image converts it, without its warnings
-        with self._cond:
-            if not self._have[t]:
-                self._wanted = t
-                self._cond.wait_for(lambda: self._have[t] or self._stop)
-        path = self._path(t)
-        if not path.is_file():
-            raise InputError(self._failed or f"{self.review.source}: frame {self.review.names[t]} was not decoded")
-        from .formats import read_image_file
-
-        return np.ascontiguousarray(read_image_file(path)[:, :, ::-1])
-
-    def frames(self):
-        """Every frame in order, (position, RGB image): a video decoded straight through (one that ends before the
-        run's last frame, cut since the run, an :class:`~pcreg.errors.InputError`)."""
-        if self.review.kind == "folder":
-            for t in range(len(self.review.names)):
-                yield t, self[t]
-            return
-        n, last = len(self.review.names), -1
-        for frame in self._frames.frames(0):
-            if frame.position >= n:
-                return
-            last = frame.position
-            yield last, frame.image
-        if last < n - 1:  # the video has lost frames since the run (cut, or replaced)
-            raise InputError(f"{self.review.source}: ends before the run's frame {self.review.names[last + 1]}")
-
-    def close(self) -> None:
-        """Stop the decoding: at once between frames; one decoding its way to a frame far into a long video
-        cannot be stopped midway and is left to end with the process (a daemon thread), after 5 s."""
-        with self._cond:
-            self._stop = True
-            self._cond.notify_all()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
-
-    def __enter__(self) -> "FrameImages":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 def _video_rate(review: RunReview) -> float | None:

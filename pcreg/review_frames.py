@@ -21,8 +21,11 @@ class FrameImages:
     by :meth:`frames`). The thread decodes in order from the first frame not cached; for a frame asked
     for behind it, or far enough ahead (:attr:`JUMP`, :attr:`RATIO`), it starts again from the video's
     start, converting nothing before that frame (FFmpeg's decoding alone); the frames passed over are
-    filled in afterwards. ``close()``
-    stops the thread; a context manager."""
+    filled in afterwards. The cache takes at most half the space its disk has free when the review starts (the
+    other half left to what else writes there: a ``pcreg run`` beside it, which a review filling the disk had
+    stopped); once that is spent, or the disk refuses a file, frames are decoded as they are asked for, each
+    written in place of the cached frames farthest from it, and said once on stderr. ``close()`` stops the thread;
+    a context manager."""
 
     #: A frame asked for ahead of the decoding is skipped to (decoding again from the start, converting
     #: nothing before it) when that costs less than going on: converting a frame and encoding its JPEG take
@@ -46,10 +49,15 @@ class FrameImages:
         self.cache = cache
         if review.kind == "video" and cache is not None:
             import os
+            import shutil
 
             cache.mkdir(parents=True, exist_ok=True)
             there = set(os.listdir(cache))
             self._have = [f"{s}.jpg" in there for s in review.stems]
+            self._budget = shutil.disk_usage(cache).free // 2  # what this review may write there
+            self._mine: dict[int, int] = {}  # the frames it wrote: position -> bytes
+            self._ahead = True  # decoding ahead of the frames asked for, until the budget is spent
+            self._missed: tuple[int, str] | None = None  # a frame asked for that the disk refused, and why
             self._thread = threading.Thread(target=self._decode, name="pcreg-review-decode", daemon=True)
             self._thread.start()
 
@@ -63,13 +71,59 @@ class FrameImages:
         with self._cond:
             if self._wanted is not None and not self._have[self._wanted]:
                 return self._wanted
+            if not self._ahead:  # the budget spent: a frame is decoded when it is asked for
+                self._cond.wait_for(lambda: self._stop or (self._wanted is not None and not self._have[self._wanted]))
+                return None if self._stop else self._wanted
             return next((t for t, have in enumerate(self._have) if not have), None)
 
-    def _decode(self) -> None:
+    def _keep(self, t: int, image: np.ndarray) -> None:
+        """Frame ``t`` (RGB) written to the cache as JPEG, within the budget: a frame decoded ahead that would spend it
+        stops the decoding ahead; the frame asked for is written in place of the cached frames farthest from it. A
+        frame the disk refuses stops the decoding ahead too, its half-written file removed; asked for, its reason
+        is what :meth:`__getitem__` raises (asked again, it is tried again)."""
         import os
 
         import cv2
 
+        data = cv2.imencode(".jpg", image[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, 92])[1].tobytes()
+        wanted = t == self._wanted
+        if sum(self._mine.values()) + len(data) > self._budget:
+            if not wanted:
+                return self._spent(f"it has taken half the space its disk had free ({self._budget / 2**20:.0f} MiB)")
+            with self._cond:  # the farthest given back (not while a reader reads it: it reads under the lock)
+                for u in sorted(self._mine, key=lambda u: abs(u - t), reverse=True):
+                    if sum(self._mine.values()) + len(data) <= self._budget:
+                        break
+                    self._path(u).unlink(missing_ok=True)
+                    self._have[u] = False
+                    del self._mine[u]
+        path = self._path(t)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        try:
+            tmp.write_bytes(data)
+            os.replace(tmp, path)
+        except OSError as exc:
+            tmp.unlink(missing_ok=True)
+            said = f"{path}: {exc.strerror or exc}"
+            with self._cond:
+                self._missed, self._wanted = ((t, said), None) if wanted else (self._missed, self._wanted)
+                self._cond.notify_all()
+            return self._spent(f"its disk refused a frame ({said})")
+        self._mine[t] = len(data)
+        with self._cond:
+            self._have[t] = True
+            self._cond.notify_all()
+
+    def _spent(self, why: str) -> None:
+        """Stop decoding ahead (:meth:`_keep`), said once on stderr."""
+        import sys
+
+        if self._ahead:
+            sys.stderr.write(f"pcreg: note: the review's frame cache {self.cache}: {why}; frames are decoded as they "
+                             "are asked for from here on\n")
+        self._ahead = False
+
+    def _decode(self) -> None:
         n = len(self.review.names)
         try:
             while not self._stop:
@@ -84,14 +138,10 @@ class FrameImages:
                         if self._stop or t >= n:
                             break
                         if not self._have[t]:
-                            ok, buf = cv2.imencode(".jpg", frame.image[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, 92])
-                            path = self._path(t)
-                            tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-                            tmp.write_bytes(buf.tobytes())
-                            os.replace(tmp, path)
+                            self._keep(t, frame.image)
+                        if not self._ahead:  # the frame asked for, and no other
+                            break
                         with self._cond:
-                            self._have[t] = True
-                            self._cond.notify_all()
                             w = self._wanted
                             if w is not None and not self._have[w] and (
                                     w < t or (w > t + self.JUMP and w < self.RATIO * (w - t))):
@@ -118,16 +168,21 @@ class FrameImages:
             if self.where is None:
                 raise ValueError("a video's frames by position need a cache folder (or read them in order: frames())")
             return load_image_and_alpha(self.where(t))[0]  # as load_image converts it, without its warnings
-        with self._cond:
-            if not self._have[t]:
-                self._wanted = t
-                self._cond.wait_for(lambda: self._have[t] or self._stop)
-        path = self._path(t)
-        if not path.is_file():
-            raise InputError(self._failed or f"{self.review.source}: frame {self.review.names[t]} was not decoded")
         from .formats import read_image_file
 
-        return np.ascontiguousarray(read_image_file(path)[:, :, ::-1])
+        for _ in range(3):  # a frame given back (:meth:`_keep`) as it was about to be read: asked for again
+            with self._cond:
+                if not self._have[t]:
+                    self._wanted, self._missed = t, None
+                    self._cond.notify_all()
+                    self._cond.wait_for(lambda: self._have[t] or self._stop or (self._missed or (None,))[0] == t)
+                missed = self._missed[1] if self._missed is not None and self._missed[0] == t else None
+                path = self._path(t)
+                if path.is_file():
+                    return np.ascontiguousarray(read_image_file(path)[:, :, ::-1])
+            if missed or self._stop:
+                break
+        raise InputError(missed or self._failed or f"{self.review.source}: frame {self.review.names[t]} was not decoded")
 
     def frames(self):
         """Every frame in order, (position, RGB image): a video decoded straight through (one that ends before the

@@ -420,6 +420,50 @@ def test_a_videos_frames_are_decoded_where_asked_and_all_kept(tmp_path, monkeypa
     assert len(starts) == 3
 
 
+def test_a_videos_cache_takes_at_most_half_the_free_space_and_gives_frames_back(tmp_path, monkeypatch, capsys):
+    """The review decoded every frame of a video ahead into OUT/.pcreg-review/, whatever the disk held: on a small
+    disk it filled it (a pcreg run writing beside it stopped, "No space left on device"), every frame not cached
+    then failed for good, even once space was freed, and half-written files stayed. The cache takes at most half the
+    space free when the review starts; then each frame asked for is decoded and written in place of the farthest; a
+    frame the disk refuses is said, and tried again when asked again."""
+    import shutil
+    from pathlib import Path
+
+    from pcreg.review import FrameImages, RunReview
+
+    n = 30
+    video = tmp_path / "count.mp4"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 10, (160, 120))
+    for t in range(n):  # frame t is grey 8 t
+        writer.write(np.full((120, 160, 3), 8 * t, np.uint8))
+    writer.release()
+    names = tuple(f"{t:06d}" for t in range(n))
+    review = RunReview(tmp_path, video, "video", names, names, frozenset({0}), (None,) * n, (), False)
+    one = len(cv2.imencode(".jpg", np.full((120, 160, 3), 128, np.uint8))[1])
+    real_usage = shutil.disk_usage
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: real_usage(p)._replace(free=8 * one))  # room for about 4
+    cache = tmp_path / "cache"
+    with FrameImages(review, cache) as images:
+        until(lambda: not images._ahead, what="the decoding ahead stopped", alive=images._thread)
+        assert 2 <= len(list(cache.glob("*.jpg"))) <= 5
+        for t in (25, 3, 0, 29, 25):
+            assert abs(float(images[t].mean()) - 8 * t) < 3, t
+            assert sum(p.stat().st_size for p in cache.glob("*.jpg")) <= 4 * one + 64 * 5
+        real_write = Path.write_bytes
+
+        def full(self, data):
+            raise OSError(28, "No space left on device")
+
+        monkeypatch.setattr(Path, "write_bytes", full)
+        asked = next(t for t in range(n) if not images._have[t])
+        with pytest.raises(pcreg.InputError, match=rf"{names[asked]}.jpg: No space left on device"):
+            images[asked]
+        monkeypatch.setattr(Path, "write_bytes", real_write)  # space freed: the same frame again
+        assert abs(float(images[asked].mean()) - 8 * asked) < 3
+    assert "pcreg: note: the review's frame cache" in capsys.readouterr().err
+    assert not list(cache.glob(".*.tmp"))
+
+
 # -- a run of another class table ----------------------------------------------------------------------
 
 

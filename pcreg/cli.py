@@ -374,7 +374,7 @@ def _main(argv: list[str] | None) -> int:
                 sys.stderr.write(f"pcreg: error: {exc.strerror}: {exc.filename}\n")
         return 3
     except PcregError as exc:
-        sys.stderr.write(f"pcreg: error: {_one_line(exc)}\n")
+        sys.stderr.write(f"pcreg: error: {_one_line(exc)}{_full_disk_resumes(str(exc), args)}\n")
         if isinstance(exc, StuckOutput) and argv is None:  # a writer outside Python would hold the process at exit
             sys.stdout.flush()
             sys.stderr.flush()
@@ -390,7 +390,7 @@ def _main(argv: list[str] | None) -> int:
             pass
         return 141
     except OSError as exc:  # the file system refused (a full disk, a folder where a file goes, permissions)
-        sys.stderr.write(f"pcreg: error: {_os_error(exc)}\n")
+        sys.stderr.write(f"pcreg: error: {_os_error(exc)}{_full_disk_resumes(str(exc), args)}\n")
         return 2
     except Exception as exc:  # noqa: BLE001 - memory run out (exit 2), or anything else: a bug in pcreg (exit 1)
         return 2 if _said_out_of_memory(exc, args) else _bug(exc, args)
@@ -459,16 +459,32 @@ def _interrupted(args) -> int:
     if module.endswith(ONE_SHOT):
         sys.stderr.write("pcreg: interrupted (nothing was written)\n")
         return 130
-    if not (module.endswith(".run") or ".evaluate_" in module):  # nothing it could resume (or not yet parsed)
-        sys.stderr.write("pcreg: interrupted\n")
-        return 130
+    resumes = _resumes(args)
+    sys.stderr.write("pcreg: interrupted\n" if resumes is None else f"pcreg: interrupted ({resumes[0]}; rerun {resumes[1]} "
+                     "to resume)\n")  # (without it: nothing it could resume, or not yet parsed)
+    return 130
+
+
+def _resumes(args) -> tuple[str, str] | None:
+    """``(what is kept, the command that resumes)`` of a command that resumes (``pcreg run``, the evaluations), stopped;
+    None for one that does not."""
+    module = getattr(args, "_module", "")
+    if not (module.endswith(".run") or ".evaluate_" in module):
+        return None
     again = ("the same command with another --record file (the recording holds what was done)"
              if getattr(args, "record", None) else "the same command")
     if getattr(args, "force", False):  # which starts over
         again = again.replace("the same command", "the same command without --force", 1)
-    kept = "the frames labelled are kept" if module.endswith(".run") else "finished units are kept"
-    sys.stderr.write(f"pcreg: interrupted ({kept}; rerun {again} to resume)\n")
-    return 130
+    return "the frames labelled are kept" if module.endswith(".run") else "finished units are kept", again
+
+
+def _full_disk_resumes(said: str, args) -> str:
+    """What a command that resumes says after a refusal of a full disk: what it kept, and that it goes on once there is
+    room (the refusal named the file alone, and a user short of space may remove the run's own files)."""
+    resumes = _resumes(args)
+    if resumes is None or "No space left on device" not in said:
+        return ""
+    return f" ({resumes[0]}; free space there, then rerun {resumes[1]} to resume)"
 
 
 def _end(stopping: bool, saved_limit: str | None, previous, *, program: bool = False) -> None:

@@ -71,6 +71,7 @@ def test_a_full_disk_while_a_step_is_appended_names_steps_jsonl(tmp_path, capsys
     assert main(run) == 2
     err = one_line_errors(capsys)
     assert len(err) == 1 and f"cannot write {out / 'steps.jsonl'}: No space left on device" in err[0], err
+    assert err[0].endswith("(the frames labelled are kept; free space there, then rerun the same command to resume)")
     # with space again, the resume writes what the whole run wrote
     (out / "steps.jsonl").unlink()
     (out / "steps.jsonl").write_bytes(b"")

@@ -21,11 +21,12 @@ class FrameImages:
     by :meth:`frames`). The thread decodes in order from the first frame not cached; for a frame asked
     for behind it, or far enough ahead (:attr:`JUMP`, :attr:`RATIO`), it starts again from the video's
     start, converting nothing before that frame (FFmpeg's decoding alone); the frames passed over are
-    filled in afterwards. The cache takes at most half the space its disk has free when the review starts (the
-    other half left to what else writes there: a ``pcreg run`` beside it, which a review filling the disk had
-    stopped); once that is spent, or the disk refuses a file, frames are decoded as they are asked for, each
-    written in place of the cached frames farthest from it, and said once on stderr. ``close()`` stops the thread;
-    a context manager."""
+    filled in afterwards. The cache folder holds at most half of what its disk has free plus what it holds already
+    when the review starts (the other half left to what else writes there: a ``pcreg run`` beside it, which a review
+    filling the disk had stopped); once that is reached, or the disk refuses a file, the decoding ahead stops, said
+    once on stderr, and only the frames asked for are decoded and written, going on from where the decoding is when
+    they lie just ahead of it. A frame the disk refuses is tried again when asked for again. ``close()`` stops the
+    thread; a context manager."""
 
     #: A frame asked for ahead of the decoding is skipped to (decoding again from the start, converting
     #: nothing before it) when that costs less than going on: converting a frame and encoding its JPEG take
@@ -45,7 +46,7 @@ class FrameImages:
         self._stop = False
         self._failed: str | None = None
         self._thread: threading.Thread | None = None
-        self._wanted: int | None = None
+        self._wanted: dict[int, int] = {}  # the frames asked for, each by how many readers wait for it
         self.cache = cache
         if review.kind == "video" and cache is not None:
             import os
@@ -54,10 +55,11 @@ class FrameImages:
             cache.mkdir(parents=True, exist_ok=True)
             there = set(os.listdir(cache))
             self._have = [f"{s}.jpg" in there for s in review.stems]
-            self._budget = shutil.disk_usage(cache).free // 2  # what this review may write there
-            self._mine: dict[int, int] = {}  # the frames it wrote: position -> bytes
+            held = sum(p.stat().st_size for p in cache.glob("*.jpg") if p.is_file())
+            self._budget = max(0, (shutil.disk_usage(cache).free + held) // 2 - held)  # what this review may add
+            self._written = 0
             self._ahead = True  # decoding ahead of the frames asked for, until the budget is spent
-            self._missed: tuple[int, str] | None = None  # a frame asked for that the disk refused, and why
+            self._missed: dict[int, str] = {}  # frames asked for that the disk refused, and why
             self._thread = threading.Thread(target=self._decode, name="pcreg-review-decode", daemon=True)
             self._thread.start()
 
@@ -66,37 +68,47 @@ class FrameImages:
         return self.cache / f"{self.review.stems[t]}.jpg"
 
     def _next_start(self) -> int | None:
-        """Where the decoding starts next: the frame asked for if it is not cached, else the first not
-        cached (None: all are)."""
+        """Where the decoding starts next: the first frame asked for that is not cached, else, decoding ahead, the
+        first not cached (None: all are, or the review ends); with the budget spent, waits for a frame asked for."""
         with self._cond:
-            if self._wanted is not None and not self._have[self._wanted]:
-                return self._wanted
-            if not self._ahead:  # the budget spent: a frame is decoded when it is asked for
-                self._cond.wait_for(lambda: self._stop or (self._wanted is not None and not self._have[self._wanted]))
-                return None if self._stop else self._wanted
-            return next((t for t, have in enumerate(self._have) if not have), None)
+            while True:
+                asked = self._asked()
+                if asked is not None or self._stop:
+                    return asked
+                if self._ahead:
+                    return next((t for t, have in enumerate(self._have) if not have), None)
+                self._cond.wait()
+
+    def _asked(self) -> int | None:
+        """The first frame asked for that is neither cached nor refused (under the lock)."""
+        return min((w for w in self._wanted if not self._have[w] and w not in self._missed), default=None)
+
+    def _go_on(self, t: int) -> bool:
+        """After frame ``t``: whether the decoding goes on from there. A frame asked for behind it, or far enough ahead
+        (:attr:`JUMP`, :attr:`RATIO`), is started at again; with the budget spent and nothing asked for, the decoder
+        waits where it is for the next frame asked for (the page asks for a frame and its neighbours)."""
+        with self._cond:
+            while True:
+                w = self._asked()
+                if w is not None:
+                    return not (w < t or (w > t + self.JUMP and w < self.RATIO * (w - t)))
+                if self._ahead or self._stop:
+                    return not self._stop
+                self._cond.wait()
 
     def _keep(self, t: int, image: np.ndarray) -> None:
-        """Frame ``t`` (RGB) written to the cache as JPEG, within the budget: a frame decoded ahead that would spend it
-        stops the decoding ahead; the frame asked for is written in place of the cached frames farthest from it. A
-        frame the disk refuses stops the decoding ahead too, its half-written file removed; asked for, its reason
-        is what :meth:`__getitem__` raises (asked again, it is tried again)."""
+        """Frame ``t`` (RGB) written to the cache as JPEG: decoded ahead, within the budget (a frame that would spend
+        it stops the decoding ahead); asked for, whatever the budget. A frame the disk refuses stops the decoding
+        ahead too, its half-written file removed; asked for, its reason is what :meth:`__getitem__` raises."""
         import os
 
         import cv2
 
         data = cv2.imencode(".jpg", image[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, 92])[1].tobytes()
-        wanted = t == self._wanted
-        if sum(self._mine.values()) + len(data) > self._budget:
-            if not wanted:
-                return self._spent(f"it has taken half the space its disk had free ({self._budget / 2**20:.0f} MiB)")
-            with self._cond:  # the farthest given back (not while a reader reads it: it reads under the lock)
-                for u in sorted(self._mine, key=lambda u: abs(u - t), reverse=True):
-                    if sum(self._mine.values()) + len(data) <= self._budget:
-                        break
-                    self._path(u).unlink(missing_ok=True)
-                    self._have[u] = False
-                    del self._mine[u]
+        with self._cond:
+            wanted = t in self._wanted
+        if not wanted and self._written + len(data) > self._budget:
+            return self._spent(f"it holds half of what its disk had free ({self._budget / 2**20:.1f} MiB more)")
         path = self._path(t)
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
         try:
@@ -106,10 +118,11 @@ class FrameImages:
             tmp.unlink(missing_ok=True)
             said = f"{path}: {exc.strerror or exc}"
             with self._cond:
-                self._missed, self._wanted = ((t, said), None) if wanted else (self._missed, self._wanted)
+                if wanted:
+                    self._missed[t] = said
                 self._cond.notify_all()
             return self._spent(f"its disk refused a frame ({said})")
-        self._mine[t] = len(data)
+        self._written += len(data)
         with self._cond:
             self._have[t] = True
             self._cond.notify_all()
@@ -137,15 +150,12 @@ class FrameImages:
                         t = frame.position
                         if self._stop or t >= n:
                             break
-                        if not self._have[t]:
-                            self._keep(t, frame.image)
-                        if not self._ahead:  # the frame asked for, and no other
-                            break
                         with self._cond:
-                            w = self._wanted
-                            if w is not None and not self._have[w] and (
-                                    w < t or (w > t + self.JUMP and w < self.RATIO * (w - t))):
-                                break  # start again at the frame asked for
+                            keep = not self._have[t] and (self._ahead or t in self._wanted)
+                        if keep:
+                            self._keep(t, frame.image)
+                        if not self._go_on(t):
+                            break  # start again at the frame asked for
                     else:
                         if t < n - 1:  # the video ended before the run's frames did
                             self._failed = f"{self.review.source}: ends before the run's frame {self.review.names[t + 1]}"
@@ -168,21 +178,24 @@ class FrameImages:
             if self.where is None:
                 raise ValueError("a video's frames by position need a cache folder (or read them in order: frames())")
             return load_image_and_alpha(self.where(t))[0]  # as load_image converts it, without its warnings
+        with self._cond:
+            if not self._have[t]:
+                self._wanted[t] = self._wanted.get(t, 0) + 1
+                self._missed.pop(t, None)  # asked for again: tried again
+                self._cond.notify_all()
+                try:
+                    self._cond.wait_for(lambda: self._have[t] or self._stop or t in self._missed)
+                finally:
+                    self._wanted[t] -= 1
+                    if not self._wanted[t]:
+                        del self._wanted[t]
+            missed = self._missed.get(t)
+        path = self._path(t)
+        if not path.is_file():
+            raise InputError(missed or self._failed or f"{self.review.source}: frame {self.review.names[t]} was not decoded")
         from .formats import read_image_file
 
-        for _ in range(3):  # a frame given back (:meth:`_keep`) as it was about to be read: asked for again
-            with self._cond:
-                if not self._have[t]:
-                    self._wanted, self._missed = t, None
-                    self._cond.notify_all()
-                    self._cond.wait_for(lambda: self._have[t] or self._stop or (self._missed or (None,))[0] == t)
-                missed = self._missed[1] if self._missed is not None and self._missed[0] == t else None
-                path = self._path(t)
-                if path.is_file():
-                    return np.ascontiguousarray(read_image_file(path)[:, :, ::-1])
-            if missed or self._stop:
-                break
-        raise InputError(missed or self._failed or f"{self.review.source}: frame {self.review.names[t]} was not decoded")
+        return np.ascontiguousarray(read_image_file(path)[:, :, ::-1])
 
     def frames(self):
         """Every frame in order, (position, RGB image): a video decoded straight through (one that ends before the

@@ -329,7 +329,7 @@ class KeyRun:
                 prior = report.trust.prior_term(report.log_odds.shape)  # made smaller on the writer's thread
                 weight = None if prop.classes is None else weight_sum(report.trust)
                 writer.submit(self._keep_prior, cur, t, prior, bool(report.fallback), prop.carry,
-                              prop.learned_later(), weight, prop.scene, cut=_cut(report))
+                              prop.learned_later(), weight, prop.scene, cut=report.cut)
                 if self.on_step is not None:
                     self.on_step()
 
@@ -371,13 +371,13 @@ class KeyRun:
                     p_a, fallback, w_a, cut_a = priors.pop(t)
                     d = report.log_odds
                     weights = None if w_a is None else (w_a.astype(np.float32), weight_sum(report.trust))
-                    cuts = (cut_a, _cut(report))
+                    cuts = (cut_a, report.cut)
                     labels, conf, second = two_sided(d, p_a, report.trust.prior_term(d.shape), prop.trust,
                                                      size=prop.working_size, classes=prop.class_read, weights=weights,
                                                      cuts=cuts)
                     labels, conf, at = kept_between(prop.bars, getattr(image, "rgb", image), labels, conf)
-                    step.update(between(step, prop.class_iou(labels[at], conf[at], None if second is None else second[at]),
-                                        conf[at], fallback, cuts))
+                    iou = prop.class_iou(labels[at], conf[at], None if second is None else second[at])
+                    step.update(_two_sided_step(step, iou, conf[at], fallback, cuts))
                     labels = prop.table_labels(labels)  # two known classes in other ids than lagr's: the table's
                 self._record(writer, s, cur, t, image, labels, conf, step, prop, clf, after=t - 1,
                              reference=references.of(report))
@@ -490,12 +490,7 @@ class Decoded:
         self._reading, self._kept = None, []
 
 
-def _cut(report) -> bool:
-    """Whether a pass's step found its frame outside its key frame's scene (:mod:`pcreg.pipeline.cuts`)."""
-    return bool((report.trust_summary or {}).get("cut", False))
-
-
-def between(step: dict, iou: dict, confidence: np.ndarray, fallback: bool, cuts: tuple[bool, bool]) -> dict:
+def _two_sided_step(step: dict, iou: dict, confidence: np.ndarray, fallback: bool, cuts: tuple[bool, bool]) -> dict:
     """What a frame between two key frames changes of its backward pass's ``step`` line: the predicted error and
     each class's predicted IoU (``iou``) of the labels written (``confidence`` of their picture), the forward pass's
     fallback and cut, and ``cut`` true only where both passes found the frame outside their key frame's scene."""

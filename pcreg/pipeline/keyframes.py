@@ -78,7 +78,7 @@ def _pass(make: Callable, key_image, key_labels, images: Callable[[int], np.ndar
         out[t] = (d, maps.prior_term(d.shape), labels, prop.last.confidence,
                   None if prop.classes is None else weight_sum(maps),
                   prop.bars if prop.bars is not None and prop.bars.held(image) else None,
-                  bool((prop.last.trust_summary or {}).get("cut", False)))
+                  prop.last.cut)
     return out, prop
 
 

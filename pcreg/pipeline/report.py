@@ -79,6 +79,11 @@ class StepReport:
         return self.registration is not None
 
     @property
+    def cut(self) -> bool:
+        """Whether the step's cut test found the frame outside its key frame's scene (:mod:`pcreg.pipeline.cuts`)."""
+        return bool((self.trust_summary or {}).get("cut", False))
+
+    @property
     def predicted_iou(self) -> dict | None:
         return None if self.trust_summary is None else self.trust_summary.get("predicted_iou")
 

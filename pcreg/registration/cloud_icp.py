@@ -200,9 +200,9 @@ def _refuse_unpaired(stayed: bool, distance: float, options: ICPOptions, target:
     hint = " (give an init that brings the clouds together, or a larger max_correspondence_distance)"
     centre, across = target.mean(axis=0), float(np.linalg.norm(np.ptp(target, axis=0)))
     if not stayed and options.backend == "open3d" and options.metric == "point_to_plane" and np.linalg.norm(centre) > across:
-        hint = (f": Open3D's point-to-plane step linearises the rotation about the origin, {np.linalg.norm(centre):.3g} from "
-                f"these clouds ({across:.3g} across); backend='reference' linearises about their mean, or move the clouds "
-                "to the origin")
+        hint = (f"{hint[:-1]}; or else: Open3D's point-to-plane step linearises the rotation about the origin, "
+                f"{np.linalg.norm(centre):.3g} from these clouds ({across:.3g} across), backend='reference' linearises "
+                "about their mean, or move the clouds to the origin)")
     raise RegistrationError(f"registration refused: no source point lies within the correspondence distance {distance:g} "
                             f"of a target point; {where}{hint}")
 

@@ -345,11 +345,17 @@ def no_run(folder: Path, takes: str = "") -> str:
     """What a reader of a run says of a ``folder`` without run.json (``takes``: what the command takes, after a comma):
     a run stopped before it labelled its first frame, where its steps.jsonl is there already and empty (the same command
     starts it), else no run's output."""
-    steps = folder / STEPS
-    if steps.is_file() and steps.stat().st_size == 0:
+    if stopped_before_first_frame(folder):
         return (f"{folder}: a pcreg run stopped there before it labelled its first frame (no {STATE} yet): the same pcreg "
                 "run command starts it")
     return f"{folder}: no {STATE}, so not the output of pcreg run{takes}"
+
+
+def stopped_before_first_frame(folder: Path) -> bool:
+    """Whether ``folder`` holds a run stopped before it labelled its first frame: its steps.jsonl there, empty, and no
+    run.json (:func:`no_run`)."""
+    steps = folder / STEPS
+    return not (folder / STATE).is_file() and steps.is_file() and steps.stat().st_size == 0
 
 
 def read_state(folder: Path) -> dict:

@@ -15,7 +15,6 @@ from typing import Any, Callable, Iterable
 
 from ...errors import InputError
 from ...formats import file_of, loads_json
-from ...runs.files import STEPS
 from .files import recordings
 
 __all__ = ["Report", "load_report", "page_data", "EXPERIMENTS"]
@@ -84,10 +83,11 @@ def load_report(folder: str | Path) -> Report:
     rp = p / "results.json"
     if not rp.is_file() and (p / "run.json").is_file():  # a run's folder, whose run.json the review did not take
         raise InputError(f"{p / 'run.json'}: unreadable (not a run.json that pcreg run wrote)")
-    if not rp.is_file() and (p / STEPS).is_file() and (p / STEPS).stat().st_size == 0:  # a run stopped before its run.json
-        from ...runs.state import no_run
+    if not rp.is_file():
+        from ...runs.state import no_run, stopped_before_first_frame
 
-        raise InputError(no_run(p))
+        if stopped_before_first_frame(p):
+            raise InputError(no_run(p))
     if not rp.is_file():
         raise InputError(f"{p}: no results.json here (an evaluation's output folder: pcreg evaluate ... --out {p})")
     try:

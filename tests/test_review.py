@@ -376,23 +376,32 @@ def test_the_overlay_video_has_every_frame(which, encoder, fps, request, tmp_pat
     assert not list(video.parent.glob(".*.tmp*"))
 
 
+def _count_video(tmp_path, n: int):
+    """``(video, straight, review)``: an ``n``-frame 160x120 MP4 in ``tmp_path`` whose frame t is grey 6 t, each frame's
+    mean decoded in order, and the review of a run over it (frame 0 its key frame)."""
+    from pcreg.datasets.sources import VideoFrames
+    from pcreg.review import RunReview
+
+    video = tmp_path / "count.mp4"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 10, (160, 120))
+    for t in range(n):
+        writer.write(np.full((120, 160, 3), 6 * t, np.uint8))
+    writer.release()
+    straight = [float(f.image.mean()) for f in VideoFrames(video).frames()]
+    names = tuple(f"{t:06d}" for t in range(n))
+    return video, straight, RunReview(tmp_path, video, "video", names, names, frozenset({0}), (None,) * n, (), False)
+
+
 def test_a_videos_frames_are_decoded_where_asked_and_all_kept(tmp_path, monkeypatch):
     """A frame asked for far ahead of the decoding is started at (the frames before it decoded, not
     converted), and those passed over are filled in afterwards: every frame cached is its own frame."""
     import threading
 
     from pcreg.datasets.sources import VideoFrames
-    from pcreg.review import FrameImages, RunReview
+    from pcreg.review import FrameImages
 
     n = 40
-    video = tmp_path / "count.mp4"
-    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 10, (160, 120))
-    for t in range(n):  # frame t is grey 6 t
-        writer.write(np.full((120, 160, 3), 6 * t, np.uint8))
-    writer.release()
-    straight = [float(f.image.mean()) for f in VideoFrames(video).frames()]  # the frames decoded in order
-    names = tuple(f"{t:06d}" for t in range(n))
-    review = RunReview(tmp_path, video, "video", names, names, frozenset({0}), (None,) * n, (), False)
+    video, straight, review = _count_video(tmp_path, n)
     gate, starts = threading.Event(), []
     original = VideoFrames.frames
 
@@ -431,19 +440,11 @@ def test_a_videos_cache_takes_at_most_half_the_free_space_then_decodes_what_is_a
     import threading
     from pathlib import Path
 
-    from pcreg.review import FrameImages, RunReview
+    from pcreg.review import FrameImages
 
     n = 40
-    video = tmp_path / "count.mp4"
-    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 10, (160, 120))
-    for t in range(n):  # frame t is grey 6 t
-        writer.write(np.full((120, 160, 3), 6 * t, np.uint8))
-    writer.release()
-    from pcreg.datasets.sources import VideoFrames
-
-    straight = [float(f.image.mean()) for f in VideoFrames(video).frames()]  # the frames decoded in order
-    names = tuple(f"{t:06d}" for t in range(n))
-    review = RunReview(tmp_path, video, "video", names, names, frozenset({0}), (None,) * n, (), False)
+    _, straight, review = _count_video(tmp_path, n)
+    names = review.names
     one = len(cv2.imencode(".jpg", np.full((120, 160, 3), 128, np.uint8))[1])
     real_usage = shutil.disk_usage
     monkeypatch.setattr(shutil, "disk_usage", lambda p: real_usage(p)._replace(free=8 * one))  # room for about 4

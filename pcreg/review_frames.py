@@ -55,7 +55,7 @@ class FrameImages:
             cache.mkdir(parents=True, exist_ok=True)
             there = set(os.listdir(cache))
             self._have = [f"{s}.jpg" in there for s in review.stems]
-            held = sum(p.stat().st_size for p in cache.glob("*.jpg") if p.is_file())
+            held = sum((cache / name).stat().st_size for name in there if name.endswith(".jpg") and not name.startswith("."))
             self._budget = max(0, (shutil.disk_usage(cache).free + held) // 2 - held)  # what this review may add
             self._written = 0
             self._ahead = True  # decoding ahead of the frames asked for, until the budget is spent

@@ -14,6 +14,25 @@ from .errors import InputError
 __all__ = ["FrameImages"]
 
 
+#: A frame's temporary file older than this many seconds is a killed review's (writing one takes milliseconds).
+STALE = 60.0
+
+
+def _drop_stale(cache: Path, names: set[str]) -> None:
+    """A killed review's half-written frames removed from ``cache`` (``names``: what it holds): a frame's temporary
+    file lives for one write and rename, so one older than :data:`STALE` seconds is no live review's."""
+    import os
+    import time
+
+    for name in names:
+        if name.startswith(".") and name.endswith(".tmp"):
+            try:
+                if time.time() - os.stat(cache / name).st_mtime > STALE:
+                    os.unlink(cache / name)
+            except FileNotFoundError:  # renamed or removed meanwhile by the review writing it
+                pass
+
+
 class FrameImages:
     """The frames of a review's source, RGB, by position: a folder's read when asked for; a video's
     decoded by a thread into ``cache`` (JPEG, one file a frame, kept for the next review), each asked for
@@ -54,6 +73,7 @@ class FrameImages:
 
             cache.mkdir(parents=True, exist_ok=True)
             there = set(os.listdir(cache))
+            _drop_stale(cache, there)
             self._have = [f"{s}.jpg" in there for s in review.stems]
             held = sum((cache / name).stat().st_size for name in there if name.endswith(".jpg") and not name.startswith("."))
             self._budget = max(0, (shutil.disk_usage(cache).free + held) // 2 - held)  # what this review may add
@@ -110,7 +130,7 @@ class FrameImages:
         if not wanted and self._written + len(data) > self._budget:
             return self._spent(f"it holds half of what its disk had free ({self._budget / 2**20:.1f} MiB more)")
         path = self._path(t)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        tmp = path.with_name(f".{path.name}.{os.getpid()}-{id(self):x}.tmp")  # one review's own, of reviews in one process
         try:
             tmp.write_bytes(data)
             os.replace(tmp, path)

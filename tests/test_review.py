@@ -488,6 +488,52 @@ def test_a_videos_cache_takes_at_most_half_the_free_space_then_decodes_what_is_a
     assert {p.name for p in cache.glob("*.jpg")} - before == {"000020.jpg"}
 
 
+def test_two_reviews_in_one_process_write_a_frame_each_without_taking_the_others_file(tmp_path, monkeypatch):
+    """Two reviews of one run in one process (the web page's server and an export) named their temporary files by
+    the process alone: one's rename took the other's file, and the other's frame failed "No such file" as if the
+    disk had refused it."""
+    import os
+
+    from pcreg.review import FrameImages
+
+    _, straight, review = _count_video(tmp_path, 6)
+    real_usage, real_replace = shutil.disk_usage, os.replace
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: real_usage(p)._replace(free=0))  # nothing decoded ahead
+    image = np.full((120, 160, 3), 30, np.uint8)
+    with FrameImages(review, tmp_path / "cache") as a, FrameImages(review, tmp_path / "cache") as b:
+        until(lambda: not a._ahead and not b._ahead, what="both reviews' decoding ahead stopped", alive=a._thread)
+        a._wanted[3] = b._wanted[3] = 1  # frame 3 asked for of both: written whatever the budget
+
+        def replace(src, dst):  # b writes the frame between a's write and a's rename
+            monkeypatch.setattr(os, "replace", real_replace)
+            b._keep(3, image)
+            real_replace(src, dst)
+
+        monkeypatch.setattr(os, "replace", replace)
+        a._keep(3, image)
+        assert a._have[3] and b._have[3] and not a._missed and not b._missed
+    assert sorted(p.name for p in (tmp_path / "cache").iterdir()) == ["000003.jpg"]
+
+
+def test_a_killed_reviews_half_written_frames_are_removed_by_the_next(tmp_path):
+    """A review killed while writing a frame left its temporary file in the cache for good; the next removes one
+    older than a minute (a live review's, just written, stays)."""
+    import time
+
+    from pcreg.review import FrameImages
+
+    _, _, review = _count_video(tmp_path, 4)
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    stale, live = cache / ".000002.jpg.4242.tmp", cache / ".000003.jpg.4243-7f.tmp"
+    stale.write_bytes(b"half a jpeg")
+    live.write_bytes(b"half a jpeg")
+    os.utime(stale, (time.time() - 3600, time.time() - 3600))
+    with FrameImages(review, cache) as images:
+        assert not stale.exists() and live.exists()
+        until(lambda: all(images._have), what="every frame cached", alive=images._thread)
+
+
 # -- a run of another class table ----------------------------------------------------------------------
 
 

@@ -41,22 +41,25 @@ FORMATS: tuple[str, ...] = ("cvat-mask",)
 def cvat_table(table: ClassTable) -> ClassTable:
     """``table`` as the archive writes it: its unknown class black, the background CVAT's import leaves
     unlabelled (a table whose unknown had another colour, a task's ``background`` of (10, 10, 10) say, was
-    refused after its run was labelled). Refused (:class:`InputError`) when a known class is black: the
-    unknown's pixels and that class's could not be told apart."""
+    refused after its run was labelled). A known class in black (the background of a VOC palette, a class of its
+    own under a table whose unknown is void) is written in the first colour of VOC's colour map that no class of
+    the table has: it was refused after its run was labelled, and CVAT's import matches a class to the task's
+    label by name, the colours only telling the archive's classes apart."""
     from dataclasses import replace
 
+    from .classes import voc_colormap
     from .classes.files import BACKGROUND
 
     black = BACKGROUND[1]
     if table.unknown_class.colour == black:
         return table
-    taken = next((c for c in table.known if c.colour == black), None)
-    if taken is not None:
-        raise InputError(f"{table.source or 'class table'}: the known class {taken.name!r} is black, the colour of "
-                         f"CVAT's background, where the archive writes the unknown class {table.unknown_class.name!r}: "
-                         "label the run again with a --classes table that gives that class another colour")
-    unknown = replace(table.unknown_class, colour=black)
-    return replace(table, classes=tuple(unknown if c.id == table.unknown else c for c in table.classes))
+    taken = {c.colour for c in table.classes}
+    free = next(rgb for rgb in (tuple(int(v) for v in c) for c in voc_colormap(256)[1:]) if rgb not in taken)
+
+    def written(c):
+        return replace(c, colour=black if c.id == table.unknown else free if c.colour == black else c.colour)
+
+    return replace(table, classes=tuple(written(c) for c in table.classes))
 
 
 def instance_colours(table: ClassTable) -> dict[int, tuple[int, int, int]]:

@@ -360,11 +360,9 @@ def test_an_export_beside_other_files_deeper_in_an_archive_or_folder_is_named(cl
 def test_the_export_of_a_run_whose_unknown_is_not_black_writes_it_black(clip, tmp_path, capsys):
     """A task whose ``background`` label is not black labels a run; its export back was refused after the run was
     labelled (CVAT would take another class for the unlabelled pixels). The archive now writes the unknown black,
-    CVAT's background, in labelmap.txt and the masks alike, and says so; read back, the labels are the run's. A table
-    with a black known class beside a grey unknown is refused, naming the class."""
+    CVAT's background, in labelmap.txt and the masks alike, and says so; read back, the labels are the run's."""
     from pcreg.classes.cvat import read_cvat_keys
     from pcreg.datasets.sources import Selection, open_frames
-    from pcreg.export import write_cvat_mask_archive
 
     frames, ids = clip
     stems = list(ids)
@@ -392,11 +390,6 @@ def test_the_export_of_a_run_whose_unknown_is_not_black_writes_it_black(clip, tm
         run = read_labels(out / f"{Path(stems[t]).stem}.png", grey)
         assert ((labels == run) | (labels == table.unknown)).all(), t
     assert sum(int((k == table.unknown).sum()) for k in keys.values()) > 0
-    black = ClassTable((LabelClass(0, "drivable", (0, 0, 0)), LabelClass(1, "other", (64, 0, 128)),
-                        LabelClass(2, "background", (10, 10, 10))), 2, "dark.json")
-    with pytest.raises(InputError, match="dark.json: the known class 'drivable' is black"):
-        write_cvat_mask_archive(tmp_path / "x.zip", [("a.png", np.zeros((4, 4), np.uint8))], black)
-    assert not (tmp_path / "x.zip").exists()
 
 
 def test_an_archive_of_a_table_whose_unknown_is_not_black_reads_back_in_datumaro(clip, tmp_path):
@@ -410,6 +403,52 @@ def test_an_archive_of_a_table_whose_unknown_is_not_black_reads_back_in_datumaro
     assert all((lab == grey.unknown).any() for lab in labels.values())
     write_cvat_mask_archive(tmp_path / "grey.zip", [(f"{s}.png", lab) for s, lab in labels.items()], grey)
     _datumaro_reads(tmp_path / "grey.zip", tmp_path / "dm", labels)
+
+
+def test_a_known_class_in_black_is_exported_in_a_colour_of_its_own(clip, tmp_path, capsys):
+    """VOC palette masks (labelme's, DAVIS's) hold their background as class 0 in black, void 255: a run read them
+    under a table saying so, and its export was refused after the whole video was labelled ("label the run again with
+    a --classes table that gives that class another colour", which the palette masks then refused). The class is
+    written in the first colour of VOC's colour map that no class has, and said; Datumaro (CVAT's import) finds its
+    masks under its name, and the void pixels left unlabelled."""
+    from pcreg.classes import write_label_png
+    from pcreg.export import write_cvat_mask_archive
+
+    frames, ids = clip
+    voc = ClassTable((LabelClass(0, "background", (0, 0, 0)), LabelClass(1, "car", (128, 0, 0)),
+                      LabelClass(2, "truck", (0, 128, 0)), LabelClass(255, "void", (224, 224, 192))), 255, "voc.json")
+    labels = {}
+    for s in list(ids)[:2]:
+        lab = TWO_LUT[ids[s]].copy()  # 0 drivable, 1 other, 2 unknown: here background, car and void
+        lab[lab == 2] = 255
+        lab[:8, :8] = 2
+        labels[s] = lab
+    write_cvat_mask_archive(tmp_path / "voc.zip", [(f"{s}.png", lab) for s, lab in labels.items()], voc)
+    with zipfile.ZipFile(tmp_path / "voc.zip") as z:
+        assert z.read("labelmap.txt").decode().splitlines()[1:] == ["void:0,0,0::", "background:128,128,0::",
+                                                                    "car:128,0,0::", "truck:0,128,0::"]
+    python = _datumaro_python()
+    with zipfile.ZipFile(tmp_path / "voc.zip") as z:
+        z.extractall(tmp_path / "dm")
+    subprocess.run([python, str(Path(__file__).with_name("_datumaro_read.py")), str(tmp_path / "dm"),
+                    str(tmp_path / "dm.npz")], check=True, capture_output=True)
+    with np.load(tmp_path / "dm.npz") as got:
+        assert list(got["names"]) == ["void", "background", "car", "truck"]
+        for item, want in labels.items():
+            for name, k in (("background", 0), ("car", 1), ("truck", 2)):
+                np.testing.assert_array_equal(got[f"mask/{item}/{name}"], want == k, err_msg=f"{item} {name}")
+            assert f"mask/{item}/void" not in got.files
+    out = tmp_path / "out"
+    (tmp_path / "voc.json").write_text(json.dumps({"classes": [{"id": c.id, "name": c.name, "colour": list(c.colour)}
+                                                               for c in voc.classes], "unknown": 255}))
+    key = tmp_path / "key.png"
+    write_label_png(key, labels[list(ids)[0]], voc)
+    rc, err = _run(["run", frames, "--labels", key, "--out", out, "--model", "flow", "--scale", "0.5",
+                    "--classes", tmp_path / "voc.json"], capsys)
+    assert rc == 0, err
+    rc, err = _run(["export", out], capsys)
+    assert rc == 0 and any("the class background is black in the run's table, CVAT's background, and (128, 128, 0) in "
+                           "the archive: its pixels go to the task's label background" in e for e in err), err
 
 
 def test_a_one_channel_mask_of_16_bits_holds_labelmap_lines_as_one_of_8(clip, tmp_path):

@@ -131,6 +131,24 @@ def test_an_object_mask_in_vocs_palette_given_without_its_table_is_refused_namin
     assert not out.exists()
 
 
+def test_a_palette_mask_under_a_table_of_other_colours_says_the_table_takes_the_palettes(tmp_path, capsys):
+    """A VOC palette mask of classes (labelme's) under a table file giving its background grey was refused pointing
+    to ``--classes FILE``, the very option given: the line says the table's colours must be the palette's."""
+    root = _youtube_vos(tmp_path / "train")
+    key = root / "Annotations" / "a1b2c3" / "00000.png"
+    table = tmp_path / "classes.json"
+    table.write_text(json.dumps({"classes": [{"id": 0, "name": "background", "colour": [64, 64, 64]},
+                                             {"id": 1, "name": "car", "colour": [128, 0, 0]},
+                                             {"id": 255, "name": "void", "colour": [224, 224, 192]}], "unknown": 255}))
+    out = tmp_path / "out"
+    assert main(["run", str(root / "JPEGImages" / "a1b2c3"), "--labels", str(key), "--classes", str(table),
+                 "--out", str(out)]) == 2
+    (line,) = one_line_errors(capsys)
+    assert str(key) in line and "'background' (64, 64, 64)" in line
+    assert "each in its colour there (its background black; --classes FILE)" in line
+    assert not out.exists()
+
+
 def test_key_masks_of_two_objects_in_one_folder_are_refused_not_carried_into_each_other(tmp_path, capsys):
     """YouTube-VOS's valid split gives an object's mask on the frame it enters, with its own index: a key folder
     whose first mask shows object 1 and a later one object 2 alone would follow object 1 into object 2."""

@@ -199,7 +199,8 @@ def _voc_palette_hint(idx: np.ndarray, pal: np.ndarray) -> str:
     if len(present) < 2 or not np.array_equal(pal[present], voc_colormap(256)[present]):
         return ""
     return ("; its colours are VOC's colour map, as DAVIS and YouTube-VOS save object masks: --classes davis reads "
-            "one object's mask, and a table of the classes its indices stand for (--classes FILE) reads classes")
+            "one object's mask, and a table of the classes its indices stand for, each in its colour there (its "
+            "background black; --classes FILE), reads classes")
 
 
 def _decode_palette(data: bytes, name: str, table: ClassTable) -> np.ndarray:

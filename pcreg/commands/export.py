@@ -38,7 +38,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from .._runner import ignore_signals, progress
     from ..classes.table import listed_name
-    from ..export import default_name, labelled_frames, read_run, write_cvat_mask_archive
+    from ..export import cvat_table, default_name, labelled_frames, read_run, write_cvat_mask_archive
     from ..formats import resolved
     from ..outputs import check_output
     from ..runs.state import read_state, run_inputs, unfinished_note
@@ -76,10 +76,14 @@ def run(args: argparse.Namespace) -> int:
     none = listed(absent) if len(absent) <= 3 else f"{len(absent)} others"
     print(f"wrote {dest}: {len(run_labels.names)} frame(s) (labels {listed(shown)}"
           f"{f'; {none} in none' if absent else ''}; unknown left unlabelled in {counts[table.unknown_class.name]})")
-    if table.unknown_class.colour != (0, 0, 0):  # cvat_table's: the archive's background is black
-        sys.stderr.write(f"pcreg: note: the unknown class {listed_name(table.unknown_class.name)} is "
-                         f"{table.unknown_class.colour} in the run's table and black in the archive, CVAT's "
-                         "background: its pixels are left unlabelled there\n")
+    for was, now in zip(table.classes, cvat_table(table).classes):  # the archive's background is black
+        if was.colour == now.colour:
+            continue
+        said = (f"the unknown class {listed_name(was.name)} is {was.colour} in the run's table and black in the archive, "
+                "CVAT's background: its pixels are left unlabelled there" if was.id == table.unknown else
+                f"the class {listed_name(was.name)} is black in the run's table, CVAT's background, and {now.colour} in "
+                f"the archive: its pixels go to the task's label {listed_name(was.name)}, CVAT matching labels by name")
+        sys.stderr.write(f"pcreg: note: {said}\n")
     names = [listed_name(c.name) for c in table.known]
     print(f"CVAT: a task with the {len(names)} labels {listed(names)} of its labelmap.txt over the same frames; "
           "Upload annotations, format Segmentation mask 1.1")

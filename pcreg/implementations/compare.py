@@ -208,6 +208,35 @@ def _objectively_close(cmp: dict, diag: float) -> bool:
             and cmp["scale_disagreement"] <= OBJECTIVE_SCALE)
 
 
+#: A row that disagrees is said to fit the clouds better than the pose it is compared with (``better_fit``) when its
+#: RMS distance capped at the gate (:func:`capped_rms`) is lower by more than a tenth.
+BETTER_FIT = 0.9
+
+
+def capped_rms(matrix: np.ndarray, source: np.ndarray, target: np.ndarray, gate: float) -> float:
+    """The RMS over every point of ``source`` moved by ``matrix`` of its distance to its nearest ``target`` point,
+    capped at ``gate``: what point-to-point ICP lowers at every step, its correspondences and its steps alike
+    (:func:`~pcreg.registration.reference.truncated_rms`)."""
+    from ..registration.reference import scores_at, truncated_rms
+
+    return truncated_rms(*scores_at(source, target, np.asarray(matrix, dtype=np.float64), gate), gate)
+
+
+def _better_fit(o, base, base_name: str, src: np.ndarray, pinned) -> dict | None:
+    """What a row that disagrees with ``base`` says when its pose fits the clouds better than the base's by ICP's own
+    measure (:data:`BETTER_FIT`; its nearest rigid pose, for a row that scales as well): the base's pose is not ICP's
+    best there (a local minimum, or a run stopped early), and "no" does not make the row's pose the wrong one. None
+    otherwise."""
+    from ..registration.transforms import nearest_rigid
+
+    gate = float(pinned.max_correspondence_distance)
+    theirs = capped_rms(base.matrix, src, pinned.target, gate)
+    ours = capped_rms(nearest_rigid(o.matrix), src, pinned.target, gate)  # a row that scales too, as a rigid pose
+    if not ours < BETTER_FIT * theirs:
+        return None
+    return {"capped_rms": ours, "compared_with_capped_rms": theirs, "compared_with": base_name}
+
+
 def implementation_row(name: str, o, a, errors: dict, pinned, *, ref, conv, src: np.ndarray, diag: float,
                        truth, problem: str | None = None) -> dict:
     """One implementation's row: its outcome, compared with the reference (step for step, or at
@@ -219,7 +248,7 @@ def implementation_row(name: str, o, a, errors: dict, pinned, *, ref, conv, src:
            "translation_disagreement": None, "matrix_relative_disagreement": None, "pose_relative_disagreement": None, "agrees": False,
            "error": errors.get(name), "status": "missing" if o == "missing" else ("failed" if name in errors else "ok"),
            "compared_with": None, "divergence": None, "trace": False,
-           "description": getattr(a, "description", ""), "settings": None, "unconstrained": None}
+           "description": getattr(a, "description", ""), "settings": None, "unconstrained": None, "better_fit": None}
     if a is not None:
         try:
             row["settings"] = a.settings(pinned)
@@ -244,6 +273,8 @@ def implementation_row(name: str, o, a, errors: dict, pinned, *, ref, conv, src:
         row["compared_with"] = base_name
         step = step_tolerance(src, diag)
         row["agrees"] = problem is None and bool(_agrees(comp, cmp, diag, step))
+        if problem is None and not row["agrees"] and name != REFERENCE:
+            row["better_fit"] = _better_fit(o, base, base_name, src, pinned)
         if ref is not None and name != REFERENCE and o.trace and ref.trace:
             row["divergence"] = trace_divergence(ref.trace, o.trace, tolerance=step, source=src,
                                                  target=pinned.target, length=_length(diag))

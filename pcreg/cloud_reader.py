@@ -56,6 +56,8 @@ def load_cloud(path: str | os.PathLike, *, max_points: int | None = None) -> np.
         pts = read_pts(path, limit)
     else:
         header = pcd_header(path) if suffix == ".pcd" else None
+        if header is not None:
+            _check_xyz(path, header)
         pts = _read_pcd_ascii(path, header) if header is not None and header.data == "ascii" else \
             _read_open3d(path, suffix, limit)
         if suffix == ".pcd":  # PCL's removeNaNFromPointCloud leaves out a point with any coordinate NaN
@@ -100,8 +102,6 @@ def _read_pcd_ascii(path: Path, header: PcdHeader) -> np.ndarray:
     (TYPE I or U) with C's ``strtol`` of base 0 (``010`` is 8, ``1.5`` is 1). An integer field that holds a
     number with a fraction is refused."""
     columns = [c for c in (header.column(axis) for axis in "xyz") if c is not None]
-    if len(columns) < 3:
-        raise InputError(f"{path}: PCD fields {' '.join(header.fields)} lack x, y or z")
     pts = number_columns(path, columns, header.points, start=header.start)
     for k, axis in enumerate("xyz"):
         kind = header.types[header.fields.index(axis)]
@@ -112,6 +112,16 @@ def _read_pcd_ascii(path: Path, header: PcdHeader) -> np.ndarray:
             raise InputError(f"{path}: its field {axis} holds whole numbers (TYPE {kind}), point {row + 1} has "
                              f"{axis} = {float(values[row])!r}")
     return pts
+
+
+def _check_xyz(path: Path, header) -> None:
+    """An :class:`~pcreg.errors.InputError` for a PCD whose fields lack x, y or z (PCL's names, in lower case),
+    whatever its DATA kind: a binary one's was Open3D's "[CheckHeader] Fields for point data are not complete"."""
+    if all(axis in header.fields for axis in "xyz"):
+        return
+    upper = " (PCL names them in lower case)" if all(axis.upper() in header.fields for axis in "xyz") else ""
+    raise InputError(f"{path}: PCD fields {' '.join(header.fields)} lack x, y or z{upper}: not a cloud of points "
+                     "(an image's or descriptors' PCD?)")
 
 
 def _open3d_warning(text: str) -> str:

@@ -2,6 +2,7 @@
 .csv (pycpd, probreg, libpointmatcher, libnabo, CloudCompare's export), PCL's organised PCDs whose pixels
 without a measurement are NaN. Each file here is built in the layout of the project's own file."""
 
+import re
 import struct
 
 import numpy as np
@@ -305,3 +306,23 @@ def test_lines_of_numbers_ending_in_a_separator_are_read_with_names_and_refused_
     named = tmp_path / "named.csv"
     named.write_text(separator.join("xyz") + separator + "\n" + bare.read_text())
     np.testing.assert_array_equal(load_cloud(named), rows)
+
+
+@pytest.mark.parametrize("kind", ["ascii", "binary"])
+@pytest.mark.parametrize("fields", ["rgba", "X Y Z"])
+def test_a_pcd_without_x_y_z_is_refused_saying_so_whatever_its_data(tmp_path, kind, fields):
+    """PCL's test files include PCDs of an image's colours (FIELDS rgba) and of descriptors: an ASCII one was
+    refused saying its fields lack x, y or z, a binary one in Open3D's words ("[CheckHeader] Fields for point data
+    are not complete"). Upper-case X Y Z, which PCL does not read as coordinates, says so too."""
+    names = fields.split()
+    n = 4
+    head = (f"VERSION 0.7\nFIELDS {fields}\nSIZE {' '.join('4' for _ in names)}\nTYPE {' '.join('F' for _ in names)}\n"
+            f"COUNT {' '.join('1' for _ in names)}\nWIDTH {n}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\n"
+            f"DATA {kind}\n")
+    values = np.arange(n * len(names), dtype=np.float32).reshape(n, len(names))
+    body = values.tobytes() if kind == "binary" else "".join(" ".join(map(str, row)) + "\n" for row in values).encode()
+    path = tmp_path / "image.pcd"
+    path.write_bytes(head.encode() + body)
+    upper = " (PCL names them in lower case)" if fields == "X Y Z" else ""
+    with pytest.raises(InputError, match=rf"image.pcd: PCD fields {fields} lack x, y or z{re.escape(upper)}: not a cloud"):
+        load_cloud(path)

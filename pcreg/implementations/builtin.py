@@ -252,6 +252,7 @@ class KissIcp(Implementation):
         return int(np.ceil((v / (0.5 * closest)) ** 2 + 1)), voxels, closest
 
     def settings(self, pinned):
+        pinned = _about_centroid(pinned)[0]
         v = float(pinned.max_correspondence_distance)
         n, voxels, _ = self._map_size(pinned)
         return {"voxel_size": v, "max_points_per_voxel": n, "map_resolution": v / np.sqrt(n),
@@ -262,7 +263,9 @@ class KissIcp(Implementation):
                 "why": "voxel = gate so the 27 neighbouring voxels hold every point within the gate; "
                        "a huge max_points_per_voxel keeps every target point (the map drops points closer "
                        "than voxel/sqrt(max_points_per_voxel) to one already in the voxel); a huge "
-                       "Geman-McClure kernel makes every weight 1 (plain least squares)"}
+                       "Geman-McClure kernel makes every weight 1 (plain least squares)",
+                "centred": "both clouds moved by minus the target's centroid, the pose moved back (its Gauss-Newton "
+                           "steps about the origin ended 114 degrees off for two bunny scans 1e6 away)"}
 
     @staticmethod
     def _kernel(pinned):
@@ -277,6 +280,7 @@ class KissIcp(Implementation):
             # Sophus (inside KISS-ICP) aborts the whole process on a rotation that is not orthonormal to 1e-10.
             raise ImplementationError("the initial guess's rotation is not orthonormal to 1e-11; KISS-ICP (Sophus) "
                                       "would abort the process")
+        given, (pinned, c) = pinned, _about_centroid(pinned)
         n, voxels, closest = self._map_size(pinned)
         if 24 * n * voxels > self.max_map_bytes:
             raise ImplementationError(
@@ -302,14 +306,15 @@ class KissIcp(Implementation):
         if trace:
             steps, iterations, met = self._trace(name=self.name, reg1=Registration(max_num_iterations=1, convergence_criterion=0.0,
                                                               max_num_threads=1),
-                                            vmap=vmap, pinned=pinned, settings=s)
+                                            vmap=vmap, pinned=pinned, settings=s, given=given, c=c)
         info = {"map_points": kept, "target_points": len(tgt)}
         if kept != len(tgt):
             info["map_dropped_points"] = len(tgt) - kept
         if pinned.dim == 2:
             info["out_of_plane"] = out_of_plane(m)
             m = project(m)
-        fit, rmse, _ = score(pinned, m)
+        m = about_point(m, c)
+        fit, rmse, _ = score(given, m)
         info["fitness_from"] = "pcreg (Open3D's definition at the returned pose)"
         if steps:
             gap = float(np.max(np.abs(steps[-1].matrix - m)))
@@ -322,26 +327,27 @@ class KissIcp(Implementation):
                       seconds=seconds, trace=steps, info=info)
 
     @staticmethod
-    def _trace(*, name, reg1, vmap, pinned, settings):
+    def _trace(*, name, reg1, vmap, pinned, settings, given, c):
         """Its iterations one call at a time: each KISS-ICP step is a Gauss-Newton step from the current
         pose with fresh correspondences, so chaining one-iteration calls replays its loop; it stops, as
         KISS-ICP does, once the step's norm (rotation vector, translation) is below the criterion:
-        ``(steps, iterations, met)``, ``met`` whether the criterion stopped it (at the last iteration too)."""
+        ``(steps, iterations, met)``, ``met`` whether the criterion stopped it (at the last iteration too).
+        ``pinned`` the clouds about ``c``, the ``given`` clouds' centroid; the steps' poses are the given clouds'."""
         from scipy.spatial.transform import Rotation
 
         src = lift(pinned.source)
         T = lift_matrix(pinned.init)
         back = project if pinned.dim == 2 else (lambda x: x)
-        fit, rmse, idx = score(pinned, pinned.init)
-        steps = [step(name, 0, pinned.init, fit, rmse, idx)]
+        fit, rmse, idx = score(given, given.init)
+        steps = [step(name, 0, given.init, fit, rmse, idx)]
         for k in range(1, settings["max_num_iterations"] + 1):
             T_new = np.asarray(reg1.align_points_to_map(src, vmap, T, max_correspondance_distance=settings["voxel_size"],
                                                         kernel=settings["kernel"]))
             D = T_new @ np.linalg.inv(T)
             dx = np.concatenate([D[:3, 3], Rotation.from_matrix(rotation_part(D[:3, :3])).as_rotvec()])
             T = T_new
-            M = back(T)
-            fit, rmse, idx = score(pinned, M)
+            M = about_point(back(T), c)
+            fit, rmse, idx = score(given, M)
             steps.append(step(name, k, M, fit, rmse, idx))
             if np.linalg.norm(dx) < settings["convergence_criterion"]:
                 return tuple(steps), k, True
@@ -365,6 +371,13 @@ class _Probabilistic(Implementation):
         return {"max_points": self.max_points, "subsample": "seeded random (seed 0 source, 1 target) when larger",
                 "w": 0.0, "max_iterations": self.max_em_iterations, "tolerance": self.tolerance,
                 "init": "source moved by the initial guess first"}
+
+
+def _about_centroid(pinned):
+    """``(pinned, c)``: the pinned clouds moved by ``-c``, the target's centroid, and the initial pose with them (a
+    pose found between them is the given clouds' about ``c``: :func:`~pcreg.registration.transforms.about_point`)."""
+    c = pinned.target.mean(axis=0)
+    return replace(pinned, source=pinned.source - c, target=pinned.target - c, init=about_point(pinned.init, -c)), c
 
 
 def _centred(src: np.ndarray, tgt: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -82,8 +82,9 @@ class ModelFit:
     largest_shift_px : how far the richer transform moves the moving edge points that land on the reference
         from where the result puts them (px, the largest).
     fits : False when the richer model aligns significantly more edge points and moves some by more than 3 px
-        (:data:`~pcreg.registration.plausibility.SHIFT_PX`): the images differ by more than the model allows, and the result is the model's
-        best approximation, not their alignment.
+        (:data:`~pcreg.registration.plausibility.SHIFT_PX`), or at least as many and moves some by more than 10 px
+        (:data:`~pcreg.registration.plausibility.FAR_PX`): the images differ by more than the model allows, and the
+        result is the model's best approximation, not their alignment.
     starts : the richer refinement's starts refined: 1, the result; 2, ORB's homography of the pair too, where it
         moved some of those edge points by more than 3 px from the result.
     """

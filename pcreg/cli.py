@@ -363,11 +363,14 @@ def _main(argv: list[str] | None) -> int:
     except RegistrationError as exc:  # a refused registration: exit 3 (the JSON form goes to stdout)
         reason = _one_line(exc, limit=1000)  # its advice whole, where an error is cut at 500
         sys.stderr.write(f"pcreg: registration refused: {reason.removeprefix('registration refused: ')}\n")
+        notes = list(getattr(exc, "__notes__", ()))  # what the command notes of its inputs (an EXIF orientation)
+        for note in notes:
+            sys.stderr.write(f"pcreg: note: {note}\n")
         if getattr(args, "json", False):
             from .commands._common import print_json
 
             try:
-                print_json({"ok": False, "reason": _one_line(exc, limit=None)})
+                print_json({"ok": False, "reason": _one_line(exc, limit=None), "notes": notes})
             except BrokenPipeError:
                 return 3
             except OSError as exc:  # stdout on a full disk: said, the refusal's status kept

@@ -37,7 +37,7 @@ def test_register_json_and_warped_output(pair, tmp_path):
     assert p.returncode == 0, p.stderr
     result = json.loads(p.stdout)
     assert set(result) == {"ok", "matrix", "fitness", "inlier_rmse", "iterations", "converged", "backend", "seconds",
-                           "inlier_ratio", "chance_ratio", "overlap", "generator", "frames", "model_fit", "settling", "notes"}
+                           "inlier_ratio", "chance_ratio", "overlap", "generator", "frames", "model_fit", "settling", "trusted", "notes"}
     assert result["settling"]["shift_px"] == 0.0 and result["settling"]["taken"] is False  # refined again, it came back
     assert result["notes"] == [] and "note" not in p.stderr  # a plain photograph's rigid view: nothing to say
     assert result["frames"] == "T_ref_mov"  # the name of ``matrix``: moving image -> reference image
@@ -231,7 +231,7 @@ def test_a_16_bit_image_of_8_bit_values_is_refused_saying_so(pair, tmp_path):
     for args, role in (((d / "ref.png", tmp_path / "low.png"), "moving"), ((tmp_path / "low.png", d / "mov.png"), "reference")):
         p = run("register", *args, "--json")
         assert p.returncode == 3 and p.stderr.splitlines() == [f"pcreg: registration refused: {said.format(role)}"], p.stderr
-        assert json.loads(p.stdout) == {"ok": False, "reason": said.format(role)}
+        assert json.loads(p.stdout) == {"ok": False, "reason": said.format(role), "notes": []}
     cv2.imwrite(str(tmp_path / "flat.png"), np.full(ref.shape, 77, np.uint8))
     p = run("register", d / "ref.png", tmp_path / "flat.png")
     assert p.returncode == 3 and p.stderr.splitlines() == [

@@ -62,6 +62,25 @@ def test_a_tiff_with_an_orientation_tag_reads_as_stored_like_a_jpeg(tmp_path, ca
         assert f"o{orientation}.tif's EXIF orientation {orientation} has viewers show it" in err
 
 
+def test_a_refusal_of_an_image_with_an_exif_orientation_still_notes_it(tmp_path, capsys):
+    """A pair refused was said without the note a result of the same file gets: an image a viewer shows turned by
+    its EXIF orientation is when a refusal most needs saying it (pcreg registers the pixels as stored). The note
+    goes to stderr after the refusal's line, and into ``--json``'s ``"notes"``, as with a result; a result's JSON
+    says whether it is ``"trusted"``."""
+    (tmp_path / "o6.tif").write_bytes(_tiff(shapes_image(seed=1), 6))
+    cv2.imwrite(str(tmp_path / "other.png"), shapes_image(seed=2)[:, :, ::-1])
+    assert main(["register", str(tmp_path / "other.png"), str(tmp_path / "o6.tif"), "--json"]) == 3
+    out, err = capsys.readouterr()
+    refusal = json.loads(out)
+    assert refusal["ok"] is False and len(refusal["notes"]) == 1 and "o6.tif's EXIF orientation 6" in refusal["notes"][0]
+    lines = err.splitlines()
+    assert lines[0].startswith("pcreg: registration refused:") and lines[1] == f"pcreg: note: {refusal['notes'][0]}"
+    cv2.imwrite(str(tmp_path / "same.png"), shapes_image(seed=1)[:, :, ::-1])
+    assert main(["register", str(tmp_path / "same.png"), str(tmp_path / "o6.tif"), "--json"]) == 0
+    result = json.loads(capsys.readouterr()[0])
+    assert result["trusted"] is True and "o6.tif's EXIF orientation 6" in result["notes"][0]
+
+
 def _transparent_pair(tmp_path):
     """Two RGBA photos whose visible parts are one scene shifted by (-20, 15), and whose transparent halves hold one
     same picture (as a cut-out exported with what was behind it); and that shift."""

@@ -79,9 +79,12 @@ def run(args: argparse.Namespace) -> int:
                               moving_mask=mov_mask, init=start)
         except (InputError, RegistrationError) as exc:  # "the reference image (16x16) is too small ...": name its file
             named = None if start is None else init_refusal(exc, args.init)
-            if named is not None:
-                raise named from None
-            raise _naming_its_file(exc, ((args.reference, ref_stored), (args.moving, stored))) from None
+            if named is None:
+                named = _naming_its_file(exc, ((args.reference, ref_stored), (args.moving, stored)))
+            if isinstance(named, RegistrationError):  # an image turned by its EXIF orientation, damaged data: said too
+                for note in _file_notes([(args.reference, ref_damage), (args.moving, damage)]):
+                    named.add_note(note)
+            raise named from None
         warped = valid = None
         if args.out or rec.enabled:
             warped, valid = warp(mov, getattr(result, "field", result.matrix), shape=ref.shape)
@@ -104,7 +107,8 @@ def run(args: argparse.Namespace) -> int:
     notes = [*_notes(result, args.model, ((args.reference, ref_damage, ref), (args.moving, damage, mov))),
              *_dark_notes(((args.reference, ref_stored), (args.moving, stored)))]
     if args.json:
-        print_json({"ok": True, **result.to_dict(), "notes": notes})
+        # trusted: no check marked the result (null for a dense result, whose field no check judges)
+        print_json({"ok": True, **result.to_dict(), "trusted": getattr(result, "trusted", None), "notes": notes})
     else:
         print(result)
         summary = _summary(result, args.model, tested=config.plausibility.min_inlier_ratio is not None)

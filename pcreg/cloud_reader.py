@@ -119,9 +119,11 @@ def _check_xyz(path: Path, header) -> None:
     whatever its DATA kind: a binary one's was Open3D's "[CheckHeader] Fields for point data are not complete"."""
     if all(axis in header.fields for axis in "xyz"):
         return
-    upper = " (PCL names them in lower case)" if all(axis.upper() in header.fields for axis in "xyz") else ""
-    raise InputError(f"{path}: PCD fields {' '.join(header.fields)} lack x, y or z{upper}: not a cloud of points "
-                     "(an image's or descriptors' PCD?)")
+    if all(axis.upper() in header.fields for axis in "xyz"):
+        raise InputError(f"{path}: PCD fields {' '.join(header.fields)} lack x, y or z: PCL names the coordinates in "
+                         "lower case (rename the fields in its header)")
+    raise InputError(f"{path}: PCD fields {' '.join(header.fields)} lack x, y or z: not a cloud of points (an image's "
+                     "or descriptors' PCD?)")
 
 
 def _open3d_warning(text: str) -> str:

@@ -53,8 +53,11 @@ def cvat_table(table: ClassTable) -> ClassTable:
     black = BACKGROUND[1]
     if table.unknown_class.colour == black:
         return table
-    taken = {c.colour for c in table.classes}
-    free = next(rgb for rgb in (tuple(int(v) for v in c) for c in voc_colormap(256)[1:]) if rgb not in taken)
+    free = None
+    if any(c.colour == black for c in table.known):  # the unknown's own colour is freed by its going black
+        # ids are 0-255 and one is the unknown's: black and at most 254 other known colours, of VOC's 255
+        taken = {c.colour for c in table.known}
+        free = next(rgb for rgb in (tuple(int(v) for v in c) for c in voc_colormap(256)[1:]) if rgb not in taken)
 
     def written(c):
         return replace(c, colour=black if c.id == table.unknown else free if c.colour == black else c.colour)

@@ -29,7 +29,7 @@ def _drop_stale(cache: Path, names: set[str]) -> None:
             try:
                 if time.time() - os.stat(cache / name).st_mtime > STALE:
                     os.unlink(cache / name)
-            except FileNotFoundError:  # renamed or removed meanwhile by the review writing it
+            except OSError:  # renamed or removed meanwhile by the review writing it; a cache it may not write to
                 pass
 
 

@@ -310,3 +310,49 @@ def test_a_row_that_fits_better_than_the_reference_says_so(on_path):
     at = next(i for i, line in enumerate(lines) if line.startswith("py:known:truth"))
     assert "fits the clouds better than the reference run to convergence" in lines[at + 1]
     assert sum("fits the clouds better" in line for line in lines) == 1
+
+
+def test_a_row_that_scales_fits_better_far_from_the_origin_too_and_the_suite_says_so(on_path, tmp_path):
+    """A row that fits a scale (pycpd's rigid model does, 1.001-1.14 measured) was judged at its nearest rigid pose
+    with the scale dropped about the origin, which moves the cloud (1 - s) times its distance from it: 1e3 away, the
+    row that fits better was said to fit no better. And ``--suite`` left ``better_fit`` out of its rows and its
+    report."""
+    from scipy.spatial.transform import Rotation
+
+    from pcreg.implementations.compare import _better_fit
+    from pcreg.implementations.suite import Case, run_suite, write_results
+    from pcreg.registration.transforms import about_point
+
+    rng = np.random.default_rng(0)
+    a = np.c_[rng.random((300, 2)) * [1.0, 0.3], np.zeros(300)]
+    a = np.r_[a, np.c_[rng.random((60, 2)) * 0.2 + [0.8, 0.3], np.zeros(60)]]
+    turn = Rotation.from_euler("z", 120, degrees=True).as_matrix()
+
+    class Pinned:
+        max_correspondence_distance = 0.3
+
+    class Pose:
+        def __init__(self, matrix):
+            self.matrix = matrix
+
+    for offset in (0.0, 1e3):
+        source, target = a + offset, a @ turn.T + offset
+        truth = np.eye(4)
+        truth[:3, :3], truth[:3, 3] = turn, offset - turn @ np.full(3, offset)
+        scaled = about_point(np.diag([1.002, 1.002, 1.002, 1.0]), target.mean(axis=0)) @ truth
+        Pinned.target = target
+        better = _better_fit(Pose(scaled), Pose(np.eye(4)), "reference", source, Pinned)
+        assert better is not None and better["capped_rms"] < 0.01, (offset, better)
+    (on_path / "known2.py").write_text(
+        "import numpy as np\n"
+        f"TURN = np.array({[[*row, 0.0] for row in turn[:2, :2].tolist()] + [[0.0, 0.0, 1.0]]})\n"
+        "def truth(source, target, *, init, **kw):\n"
+        "    return TURN\n"
+        "truth.comparability = 'objective'\n")
+    flat = a[:, :2]
+    rows = run_suite([Case(flat, flat @ turn[:2, :2].T, np.eye(3), 0.3, 30, 1e-6, 1e-6, name="L")], ["py:known2:truth"])
+    row = next(r for r in rows if r["implementation"] == "py:known2:truth")
+    assert row["agrees"] is False and row["better_fit"]["capped_rms"] < 1e-9
+    write_results(tmp_path / "suite", rows)
+    report = (tmp_path / "suite" / "results.md").read_text()
+    assert "Fits the clouds better than the reference" in report and "- L / py:known2:truth: RMS distance" in report

@@ -451,6 +451,27 @@ def test_a_known_class_in_black_is_exported_in_a_colour_of_its_own(clip, tmp_pat
                            "the archive: its pixels go to the task's label background" in e for e in err), err
 
 
+def test_tables_of_every_voc_colour_export(tmp_path):
+    """Looking for a free colour for a black known class raised StopIteration (exit 1) on tables that take every
+    colour of VOC's map, even with no black known class (a table of 256 exported before); the full VOC palette as a
+    table (0 background black, 255 void the unknown) frees the void's colour as the unknown goes black. Ids are 0-255,
+    one the unknown's: black and at most 254 other known colours leave one of VOC's 255 free."""
+    from pcreg.classes import voc_colormap
+    from pcreg.export import cvat_table, write_cvat_mask_archive
+
+    cmap = [tuple(int(v) for v in c) for c in voc_colormap(256)]
+    grey = ClassTable((LabelClass(0, "unknown", (10, 10, 10)), *(LabelClass(k, f"c{k}", cmap[k]) for k in range(1, 256))),
+                      0, "many.json")
+    assert cvat_table(grey).unknown_class.colour == (0, 0, 0)
+    write_cvat_mask_archive(tmp_path / "many.zip", [("a.png", np.arange(16, dtype=np.uint8).reshape(4, 4))], grey)
+    voc = ClassTable((LabelClass(0, "background", (0, 0, 0)), *(LabelClass(k, f"o{k}", cmap[k]) for k in range(1, 255)),
+                      LabelClass(255, "void", cmap[255])), 255, "voc.json")
+    assert cvat_table(voc).classes[0].colour == cmap[255] == (224, 224, 192)
+    packed = ClassTable((LabelClass(0, "background", (0, 0, 0)), *(LabelClass(k, f"o{k}", cmap[k + 1]) for k in range(1, 255)),
+                         LabelClass(255, "void", (10, 10, 10))), 255, "packed.json")  # 2-255 taken, 1 left
+    assert cvat_table(packed).classes[0].colour == cmap[1]
+
+
 def test_a_one_channel_mask_of_16_bits_holds_labelmap_lines_as_one_of_8(clip, tmp_path):
     """A one-channel class mask holds each pixel's line of labelmap.txt, in 8 bits or 16 (a 16-bit one was
     refused as "not a class mask (... or one channel)"); a value past the last line is refused, naming it."""

@@ -532,6 +532,18 @@ def test_a_killed_reviews_half_written_frames_are_removed_by_the_next(tmp_path):
     with FrameImages(review, cache) as images:
         assert not stale.exists() and live.exists()
         until(lambda: all(images._have), what="every frame cached", alive=images._thread)
+    os.utime(live, (time.time() - 3600, time.time() - 3600))
+    real_unlink = os.unlink
+
+    def refused(path, *a, **k):  # a cache it may read and not write (a read-only mount, another user's run)
+        raise PermissionError(13, "Permission denied", str(path))
+
+    try:
+        os.unlink = refused
+        with FrameImages(review, cache) as images:  # the review starts all the same, from the frames cached
+            assert all(images._have) and live.exists()
+    finally:
+        os.unlink = real_unlink
 
 
 # -- a run of another class table ----------------------------------------------------------------------

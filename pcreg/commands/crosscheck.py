@@ -293,11 +293,12 @@ def format_table(out: dict) -> str:
                          f"{r['divergence']['cause']}")
         better = r.get("better_fit")
         if better:
-            run_on = " run to convergence" if better["compared_with"] != "reference" else ""
-            lines.append(f"{'':24s} fits the clouds better than the reference{run_on}: RMS distance capped at the gate "
-                         f"{better['capped_rms']:.3g} against {better['compared_with_capped_rms']:.3g} (what point-to-point "
-                         "ICP lowers at every step), so the reference's pose is not ICP's best here (a local minimum, or "
-                         "stopped early) and 'no' does not make this row wrong")
+            converged = better["compared_with"] != "reference"
+            lines.append(f"{'':24s} fits the clouds better than the reference{' run to convergence' if converged else ''}: "
+                         f"RMS distance capped at the gate {better['capped_rms']:.3g} against "
+                         f"{better['compared_with_capped_rms']:.3g} (what point-to-point ICP lowers at every step), so the "
+                         f"reference's pose is not ICP's best here ({'a local minimum' if converged else 'a local minimum, or stopped early'}) "
+                         "and 'no' does not make this row wrong")
         wide = _mixture_width(r, out["settings"]["max_correspondence_distance"])
         if wide:
             lines.append(f"{'':24s} {wide}")

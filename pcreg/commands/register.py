@@ -223,7 +223,7 @@ def _notes(result, model: str, images) -> list[str]:
 
 def _model_fit_notes(result, model: str) -> list[str]:
     """A note when a projective fit (refined from the result or from ORB's homography of the pair)
-    aligns significantly more edge points (:attr:`~pcreg.registration.result.RegistrationResult.model_fits`
+    aligns significantly more edge points, or as many and moves them far (:attr:`~pcreg.registration.result.RegistrationResult.model_fits`
     False): the transform is the model's best approximation of a view it cannot make, or off the alignment."""
     evidence = getattr(result, "evidence", None)  # a dense result has none: a field follows its similarity
     fit = None if evidence is None else evidence.model_fit

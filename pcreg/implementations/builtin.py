@@ -288,7 +288,7 @@ class KissIcp(Implementation):
                 f"of {n} points: the closest distinct target points are {closest:.3g} apart, the gate "
                 f"{float(pinned.max_correspondence_distance):.3g}); voxel-downsample the clouds (--voxel-size) or "
                 "narrow the gate")
-        s = self.settings(pinned)
+        s = self.settings(given)
         vmap = VoxelHashMap(voxel_size=s["voxel_size"], max_distance=np.inf,
                             max_points_per_voxel=s["max_points_per_voxel"])
         tgt = lift(pinned.target)
@@ -376,8 +376,8 @@ class _Probabilistic(Implementation):
 def _about_centroid(pinned):
     """``(pinned, c)``: the pinned clouds moved by ``-c``, the target's centroid, and the initial pose with them (a
     pose found between them is the given clouds' about ``c``: :func:`~pcreg.registration.transforms.about_point`)."""
-    c = pinned.target.mean(axis=0)
-    return replace(pinned, source=pinned.source - c, target=pinned.target - c, init=about_point(pinned.init, -c)), c
+    source, target, c = _centred(pinned.source, pinned.target)
+    return replace(pinned, source=source, target=target, init=about_point(pinned.init, -c)), c
 
 
 def _centred(src: np.ndarray, tgt: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

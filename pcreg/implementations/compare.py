@@ -224,14 +224,17 @@ def capped_rms(matrix: np.ndarray, source: np.ndarray, target: np.ndarray, gate:
 
 def _better_fit(o, base, base_name: str, src: np.ndarray, pinned) -> dict | None:
     """What a row that disagrees with ``base`` says when its pose fits the clouds better than the base's by ICP's own
-    measure (:data:`BETTER_FIT`; its nearest rigid pose, for a row that scales as well): the base's pose is not ICP's
+    measure (:data:`BETTER_FIT`; its nearest rigid pose about the source's centroid, for a row that scales as well): the
+    base's pose is not ICP's
     best there (a local minimum, or a run stopped early), and "no" does not make the row's pose the wrong one. None
     otherwise."""
-    from ..registration.transforms import nearest_rigid
+    from ..registration.transforms import apply, nearest_rigid
 
     gate = float(pinned.max_correspondence_distance)
     theirs = capped_rms(base.matrix, src, pinned.target, gate)
-    ours = capped_rms(nearest_rigid(o.matrix), src, pinned.target, gate)  # a row that scales too, as a rigid pose
+    rigid, d, centre = nearest_rigid(o.matrix), src.shape[1], src.mean(axis=0)
+    rigid[:d, d] = apply(np.asarray(o.matrix), centre[None])[0] - rigid[:d, :d] @ centre  # its scale dropped about
+    ours = capped_rms(rigid, src, pinned.target, gate)  # the source's centroid, not the origin (1e3 away: the gate)
     if not ours < BETTER_FIT * theirs:
         return None
     return {"capped_rms": ours, "compared_with_capped_rms": theirs, "compared_with": base_name}

@@ -363,7 +363,8 @@ def run_suite(cases: Sequence[Case], implementations: Sequence[str], *, timeout:
         for name, row in r.rows.items():
             div = row.get("divergence")
             rows.append({"case": c.name, "implementation": name, **{k: row.get(k) for k in COLUMNS[2:]},
-                         "divergence": None if not div else f"iteration {div['iteration']}: {div['cause']}"})
+                         "divergence": None if not div else f"iteration {div['iteration']}: {div['cause']}",
+                         "better_fit": row.get("better_fit")})
     return rows
 
 
@@ -399,6 +400,11 @@ def write_results(out: str | os.PathLike, rows: list[dict], *, skipped: dict[str
     notes = [f"- {r['case']} / {r['implementation']}: {r['divergence']}" for r in rows if r.get("divergence")]
     if notes:
         md += ["", "First divergence from the reference's trace:", "", *notes]
+    better = [f"- {r['case']} / {r['implementation']}: RMS distance capped at the gate {r['better_fit']['capped_rms']:.3g} "
+              f"against the {r['better_fit']['compared_with']}'s {r['better_fit']['compared_with_capped_rms']:.3g}"
+              for r in rows if r.get("better_fit")]
+    if better:
+        md += ["", "Fits the clouds better than the reference (its pose is not ICP's best there):", "", *better]
     if skipped:
         md += ["", "Skipped:", "", *[f"- {k}: {v}" for k, v in skipped.items()]]
     atomic_write_text(out / "results.md", "\n".join(md) + "\n")

@@ -361,21 +361,7 @@ def _main(argv: list[str] | None) -> int:
     try:
         return _run_command(args)
     except RegistrationError as exc:  # a refused registration: exit 3 (the JSON form goes to stdout)
-        reason = _one_line(exc, limit=1000)  # its advice whole, where an error is cut at 500
-        sys.stderr.write(f"pcreg: registration refused: {reason.removeprefix('registration refused: ')}\n")
-        notes = list(getattr(exc, "__notes__", ()))  # what the command notes of its inputs (an EXIF orientation)
-        for note in notes:
-            sys.stderr.write(f"pcreg: note: {note}\n")
-        if getattr(args, "json", False):
-            from .commands._common import print_json
-
-            try:
-                print_json({"ok": False, "reason": _one_line(exc, limit=None), "notes": notes})
-            except BrokenPipeError:
-                return 3
-            except OSError as exc:  # stdout on a full disk: said, the refusal's status kept
-                sys.stderr.write(f"pcreg: error: {exc.strerror}: {exc.filename}\n")
-        return 3
+        return _refused(exc, args)
     except PcregError as exc:
         sys.stderr.write(f"pcreg: error: {_one_line(exc)}{_full_disk_resumes(str(exc), args)}\n")
         if isinstance(exc, StuckOutput) and argv is None:  # a writer outside Python would hold the process at exit
@@ -442,6 +428,26 @@ def _said_out_of_memory(exc: BaseException, args: argparse.Namespace | None = No
     else:
         sys.stderr.write(f"pcreg: error: out of memory ({_memory_advice(args)})\n")
     return True
+
+
+def _refused(exc: BaseException, args) -> int:
+    """Exit 3 for a refused registration: its reason on stderr, then what the command notes of its inputs (an EXIF
+    orientation: the exception's notes), and with ``--json`` both on stdout."""
+    reason = _one_line(exc, limit=1000)  # its advice whole, where an error is cut at 500
+    sys.stderr.write(f"pcreg: registration refused: {reason.removeprefix('registration refused: ')}\n")
+    notes = list(getattr(exc, "__notes__", ()))
+    for note in notes:
+        sys.stderr.write(f"pcreg: note: {note}\n")
+    if getattr(args, "json", False):
+        from .commands._common import print_json
+
+        try:
+            print_json({"ok": False, "reason": _one_line(exc, limit=None), "notes": notes})
+        except BrokenPipeError:
+            return 3
+        except OSError as err:  # stdout on a full disk: said, the refusal's status kept
+            sys.stderr.write(f"pcreg: error: {err.strerror}: {err.filename}\n")
+    return 3
 
 
 def _out_of_memory(exc: BaseException) -> bool:

@@ -78,13 +78,8 @@ def run(args: argparse.Namespace) -> int:
             result = register(ref, mov, config=config, callback=rec.icp_callback(args.backend), reference_mask=ref_mask,
                               moving_mask=mov_mask, init=start)
         except (InputError, RegistrationError) as exc:  # "the reference image (16x16) is too small ...": name its file
-            named = None if start is None else init_refusal(exc, args.init)
-            if named is None:
-                named = _naming_its_file(exc, ((args.reference, ref_stored), (args.moving, stored)))
-            if isinstance(named, RegistrationError):  # an image turned by its EXIF orientation, damaged data: said too
-                for note in _file_notes([(args.reference, ref_damage), (args.moving, damage)]):
-                    named.add_note(note)
-            raise named from None
+            raise _refusal(exc, args, start, ((args.reference, ref_stored, ref_damage), (args.moving, stored, damage))) \
+                from None
         warped = valid = None
         if args.out or rec.enabled:
             warped, valid = warp(mov, getattr(result, "field", result.matrix), shape=ref.shape)
@@ -152,6 +147,21 @@ def _check_arguments(args: argparse.Namespace) -> None:
     if args.refine == "point_to_line" and args.backend != "reference":  # the library's refusal names its keywords
         raise InputError("--refine point_to_line is a reference-backend finish (Open3D's ICP here is point-to-point): "
                          "leave --refine out with --backend open3d, or give --backend reference")
+
+
+def _refusal(exc: Exception, args: argparse.Namespace, start, images) -> Exception:
+    """What ``register`` raises for ``exc``: the init's own refusal, or ``exc`` naming its file (``images``: each
+    one's path, array as stored and damage); a refused registration notes what a result would of the files (an
+    image turned by its EXIF orientation, damaged data)."""
+    from ..errors import RegistrationError
+
+    named = None if start is None else init_refusal(exc, args.init)
+    if named is None:
+        named = _naming_its_file(exc, [(path, stored) for path, stored, _ in images])
+    if isinstance(named, RegistrationError):
+        for note in _file_notes([(path, damage) for path, _, damage in images]):
+            named.add_note(note)
+    return named
 
 
 def _naming_its_file(exc: Exception, images) -> Exception:

@@ -42,8 +42,8 @@ def cvat_table(table: ClassTable) -> ClassTable:
     """``table`` as the archive writes it: its unknown class black, the background CVAT's import leaves
     unlabelled (a table whose unknown had another colour, a task's ``background`` of (10, 10, 10) say, was
     refused after its run was labelled). A known class in black (the background of a VOC palette, a class of its
-    own under a table whose unknown is void) is written in the first colour of VOC's colour map that no class of
-    the table has: it was refused after its run was labelled, and CVAT's import matches a class to the task's
+    own under a table whose unknown is void) is written in the first colour of VOC's colour map that no known class
+    has (the unknown's own, freed as it goes black, among them): it was refused after its run was labelled, and CVAT's import matches a class to the task's
     label by name, the colours only telling the archive's classes apart."""
     from dataclasses import replace
 

@@ -332,7 +332,7 @@ class KissIcp(Implementation):
         pose with fresh correspondences, so chaining one-iteration calls replays its loop; it stops, as
         KISS-ICP does, once the step's norm (rotation vector, translation) is below the criterion:
         ``(steps, iterations, met)``, ``met`` whether the criterion stopped it (at the last iteration too).
-        ``pinned`` the clouds about ``c``, the ``given`` clouds' centroid; the steps' poses are the given clouds'."""
+        ``pinned`` the clouds about ``c``, the ``given`` target's centroid; the steps' poses are the given clouds'."""
         from scipy.spatial.transform import Rotation
 
         src = lift(pinned.source)

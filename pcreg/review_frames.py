@@ -9,28 +9,10 @@ from typing import Any
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, OutputError
+from .outputs import atomic_write_bytes, remove_leftovers
 
 __all__ = ["FrameImages"]
-
-
-#: A frame's temporary file older than this many seconds is a killed review's (writing one takes milliseconds).
-STALE = 60.0
-
-
-def _drop_stale(cache: Path, names: set[str]) -> None:
-    """A killed review's half-written frames removed from ``cache`` (``names``: what it holds): a frame's temporary
-    file lives for one write and rename, so one older than :data:`STALE` seconds is no live review's."""
-    import os
-    import time
-
-    for name in names:
-        if name.startswith(".") and name.endswith(".tmp"):
-            try:
-                if time.time() - os.stat(cache / name).st_mtime > STALE:
-                    os.unlink(cache / name)
-            except OSError:  # renamed or removed meanwhile by the review writing it; a cache it may not write to
-                pass
 
 
 class FrameImages:
@@ -72,8 +54,8 @@ class FrameImages:
             import shutil
 
             cache.mkdir(parents=True, exist_ok=True)
+            remove_leftovers(cache, lambda name: name.endswith(".jpg"))  # a killed review's half-written frames
             there = set(os.listdir(cache))
-            _drop_stale(cache, there)
             self._have = [f"{s}.jpg" in there for s in review.stems]
             held = sum((cache / name).stat().st_size for name in there if name.endswith(".jpg") and not name.startswith("."))
             self._budget = max(0, (shutil.disk_usage(cache).free + held) // 2 - held)  # what this review may add
@@ -120,8 +102,6 @@ class FrameImages:
         """Frame ``t`` (RGB) written to the cache as JPEG: decoded ahead, within the budget (a frame that would spend
         it stops the decoding ahead); asked for, whatever the budget. A frame the disk refuses stops the decoding
         ahead too, its half-written file removed; asked for, its reason is what :meth:`__getitem__` raises."""
-        import os
-
         import cv2
 
         data = cv2.imencode(".jpg", image[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, 92])[1].tobytes()
@@ -130,13 +110,10 @@ class FrameImages:
         if not wanted and self._written + len(data) > self._budget:
             return self._spent(f"it holds half of what its disk had free ({self._budget / 2**20:.1f} MiB more)")
         path = self._path(t)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}-{id(self):x}.tmp")  # one review's own, of reviews in one process
         try:
-            tmp.write_bytes(data)
-            os.replace(tmp, path)
-        except OSError as exc:
-            tmp.unlink(missing_ok=True)
-            said = f"{path}: {exc.strerror or exc}"
+            atomic_write_bytes(path, data)  # a temporary file of its own, removed if the disk refuses it
+        except OutputError as exc:
+            said = str(exc)
             with self._cond:
                 if wanted:
                     self._missed[t] = said

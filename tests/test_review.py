@@ -438,7 +438,6 @@ def test_a_videos_cache_takes_at_most_half_the_free_space_then_decodes_what_is_a
     review counts what the first cached."""
     import shutil
     import threading
-    from pathlib import Path
 
     from pcreg.review import FrameImages
 
@@ -468,16 +467,16 @@ def test_a_videos_cache_takes_at_most_half_the_free_space_then_decodes_what_is_a
         for frames in ((30, 31, 29, 32), (10, 11, 9, 12), (31, 32, 30, 33), (38, 39, 37)):
             ask(images, frames)
         assert len(list(cache.glob("*.jpg"))) <= ahead + 14  # the frames asked for, no other
-        real_write = Path.write_bytes
+        real_fsync = os.fsync
 
-        def full(self, data):
+        def full(fd):  # the disk refuses the frame's data as it is synced
             raise OSError(28, "No space left on device")
 
-        monkeypatch.setattr(Path, "write_bytes", full)
+        monkeypatch.setattr(os, "fsync", full)
         asked = next(t for t in range(n) if not images._have[t])
         with pytest.raises(pcreg.InputError, match=rf"{names[asked]}.jpg: No space left on device"):
             images[asked]
-        monkeypatch.setattr(Path, "write_bytes", real_write)  # space freed: the same frame again
+        monkeypatch.setattr(os, "fsync", real_fsync)  # space freed: the same frame again
         ask(images, (asked,))
     assert "pcreg: note: the review's frame cache" in capsys.readouterr().err
     assert not list(cache.glob(".*.tmp"))
@@ -516,23 +515,27 @@ def test_two_reviews_in_one_process_write_a_frame_each_without_taking_the_others
 
 
 def test_a_killed_reviews_half_written_frames_are_removed_by_the_next(tmp_path):
-    """A review killed while writing a frame left its temporary file in the cache for good; the next removes one
-    older than a minute (a live review's, just written, stays)."""
-    import time
+    """A review killed while writing a frame left its temporary file in the cache for good; the next removes one no
+    review is writing (its writer's lock gone: a live review's, its lock held, stays), and starts all the same in a
+    cache it may not remove them from."""
+    import fcntl
 
     from pcreg.review import FrameImages
 
     _, _, review = _count_video(tmp_path, 4)
     cache = tmp_path / "cache"
     cache.mkdir()
-    stale, live = cache / ".000002.jpg.4242.tmp", cache / ".000003.jpg.4243-7f.tmp"
+    stale, live = cache / ".000002.jpg.k1ll3d_a.tmp", cache / ".000003.jpg.wr1t1ng_.tmp"
     stale.write_bytes(b"half a jpeg")
     live.write_bytes(b"half a jpeg")
-    os.utime(stale, (time.time() - 3600, time.time() - 3600))
-    with FrameImages(review, cache) as images:
-        assert not stale.exists() and live.exists()
-        until(lambda: all(images._have), what="every frame cached", alive=images._thread)
-    os.utime(live, (time.time() - 3600, time.time() - 3600))
+    fd = os.open(live, os.O_RDONLY)
+    fcntl.flock(fd, fcntl.LOCK_EX)  # as a review writing it holds it
+    try:
+        with FrameImages(review, cache) as images:
+            assert not stale.exists() and live.exists()
+            until(lambda: all(images._have), what="every frame cached", alive=images._thread)
+    finally:
+        os.close(fd)  # its writer killed
     real_unlink = os.unlink
 
     def refused(path, *a, **k):  # a cache it may read and not write (a read-only mount, another user's run)
@@ -544,6 +547,8 @@ def test_a_killed_reviews_half_written_frames_are_removed_by_the_next(tmp_path):
             assert all(images._have) and live.exists()
     finally:
         os.unlink = real_unlink
+    with FrameImages(review, cache):
+        assert not live.exists()
 
 
 # -- a run of another class table ----------------------------------------------------------------------

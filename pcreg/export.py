@@ -43,8 +43,9 @@ def cvat_table(table: ClassTable) -> ClassTable:
     unlabelled (a table whose unknown had another colour, a task's ``background`` of (10, 10, 10) say, was
     refused after its run was labelled). A known class in black (the background of a VOC palette, a class of its
     own under a table whose unknown is void) is written in the first colour of VOC's colour map that no known class
-    has (the unknown's own, freed as it goes black, among them): it was refused after its run was labelled, and CVAT's import matches a class to the task's
-    label by name, the colours only telling the archive's classes apart."""
+    has (the unknown's own, freed as it goes black, among them): it was refused after its run was labelled, and
+    CVAT's import matches a class to the task's label by name, the colours only telling the archive's classes
+    apart."""
     from dataclasses import replace
 
     from .classes import voc_colormap

@@ -224,10 +224,9 @@ def capped_rms(matrix: np.ndarray, source: np.ndarray, target: np.ndarray, gate:
 
 def _better_fit(o, base, base_name: str, src: np.ndarray, pinned) -> dict | None:
     """What a row that disagrees with ``base`` says when its pose fits the clouds better than the base's by ICP's own
-    measure (:data:`BETTER_FIT`; its nearest rigid pose about the source's centroid, for a row that scales as well): the
-    base's pose is not ICP's
-    best there (a local minimum, or a run stopped early), and "no" does not make the row's pose the wrong one. None
-    otherwise."""
+    measure (:data:`BETTER_FIT`; its nearest rigid pose about the source's centroid, for a row that scales as well):
+    the base's pose is not ICP's best there (a local minimum, or a run stopped early), and "no" does not make the
+    row's pose the wrong one. None otherwise."""
     from ..registration.transforms import apply, nearest_rigid
 
     gate = float(pinned.max_correspondence_distance)

@@ -289,3 +289,18 @@ def test_a_damaged_jpeg_frame_is_said_when_evaluated(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "pcreg: note: clip seq, frame 00002: its decoder reports damaged data (Corrupt JPEG data" in err, err
     assert err.count("damaged data") == 1
+
+
+def test_the_calibration_table_is_of_the_follower_when_it_runs_without_pcreg(tmp_path):
+    """``--methods pcreg_object``: the calibration table and checks were of ``pcreg``, not run (a row of nan a
+    sequence); they are of the follower's confidence, and a run of no method with a confidence has none."""
+    seq = write_pcreg_layout(tmp_path / "seq", frames_and_masks(6, shape=(96, 128)))
+    out = tmp_path / "out"
+    assert main(["evaluate", "stream", "--data", f"davis:{seq}", "--methods", "plain,pcreg_object", "--out", str(out)]) == 0
+    table = (out / "stream_calibration.md").read_text()
+    assert "pcreg_object's confidence" in table and "nan" not in table, table
+    assert json.loads((out / "results.json").read_text())["calibration"]["pixels"] > 0
+    assert "pcreg_object's confidence is calibrated" in (out / "checks.md").read_text()
+    assert main(["evaluate", "stream", "--data", f"davis:{seq}", "--methods", "plain", "--out", str(tmp_path / "plain")]) == 0
+    assert not (tmp_path / "plain" / "stream_calibration.md").exists()
+    assert "confidence" not in (tmp_path / "plain" / "checks.md").read_text()

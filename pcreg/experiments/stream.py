@@ -51,7 +51,8 @@ from ..recording.null import NULL_RECORDER
 from .results import Results
 from .stream_davis import DavisScores, chain, check_davis_config, is_davis, summarise_davis
 from .stream_methods import (BASELINES, CONFIDENCE_LEVELS, METHODS, OBJECT_METHOD, PCREG_METHODS, PRESET_OF,  # noqa: F401
-                             Timed, calibration, calibration_counts, make_method)
+                             Timed, calibration, calibration_counts, confidence_method,
+                             make_method)
 
 @dataclass(frozen=True)
 class StreamConfig:
@@ -169,7 +170,7 @@ def run_clip(frames, *, methods=METHODS, key_every: int | None = None, backend: 
     keys = [k for k in key_frames(n, key_every) if k == 0 or _can_start(frames[k].labels, methods)]
     unit_work(sum(len(s.frames) for s in stretches(keys, n)) * len(methods))
     seconds = dict.fromkeys(methods, 0.0)
-    counts = np.zeros((2, CONFIDENCE_LEVELS), np.int64)
+    counts, calibrated = np.zeros((2, CONFIDENCE_LEVELS), np.int64), confidence_method(methods)
     rows = []
     for s in stretches(keys, n):
         key = s.first
@@ -191,7 +192,7 @@ def run_clip(frames, *, methods=METHODS, key_every: int | None = None, backend: 
             timed = Timed(labeller)
             for t, _, labels in propagate(timed, ((t, frames[t].image) for t in s.frames)):
                 errors[t][m] = error_rate(labels, frames[t].labels)
-                if m == "pcreg" and labeller.last.confidence is not None:
+                if m == calibrated and labeller.last.confidence is not None:
                     counts += calibration_counts(labeller.last.confidence, labels, frames[t].labels)
                 if on_frame is not None:
                     preds[t][m] = labels

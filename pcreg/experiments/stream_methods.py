@@ -13,7 +13,7 @@ import numpy as np
 from .._progress import unit_step
 
 __all__ = ["METHODS", "PCREG_METHODS", "OBJECT_METHOD", "BASELINES", "PRESET_OF", "CONFIDENCE_LEVELS", "calibration_counts",
-           "calibration", "KeyPrior", "FixedPrior", "make_method", "Timed", "counted", "kernels_ready"]
+           "calibration", "confidence_method", "KeyPrior", "FixedPrior", "make_method", "Timed", "counted", "kernels_ready"]
 
 #: Methods scored per frame, in table order.
 METHODS: tuple[str, ...] = ("plain", "unregistered", "pcreg", "pcreg_half", "pcreg_flow", "dense_key", "dense_previous",
@@ -41,6 +41,12 @@ def _propagator(method: str, classifier, backend: str):
     if method in BASELINES:
         model = f"flow:{PRESET_OF[model]}"
     return Propagator(classifier, model=model, anchor=anchor, backend=backend, trust=None, learning=None)
+
+
+def confidence_method(methods) -> str | None:
+    """The method whose confidence an evaluation calibrates: ``pcreg`` when it runs, else :data:`OBJECT_METHOD`
+    (what ``pcreg run --follow object`` writes) when it does; None when neither runs."""
+    return next((m for m in ("pcreg", OBJECT_METHOD) if m in methods), None)
 
 
 #: Levels of the confidence histograms (:func:`calibration_counts`): the 8-bit steps of a confidence PNG.

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from ..results import Results
+from ..stream_methods import confidence_method
 from .stream_classes import classes_checks, classes_tables, is_many_classes
 
 
@@ -43,7 +44,7 @@ def per_frame(results: dict) -> tuple[list, list]:
 
 
 def calibration_table(results: dict) -> tuple[list, list, str]:
-    """pcreg's confidence per clip and over all clips: expected calibration error, error of all known
+    """The confidence of pcreg (or of pcreg_object, when pcreg did not run) per clip and over all clips: expected calibration error, error of all known
     pixels and of the most confident 80%, and their ratio."""
     header = ["clip", "known pixels", "ECE", "error %", "error % of the most confident 80%", "ratio"]
     items = [(n, c.get("calibration") or {}) for n, c in results["datasets"].items()]
@@ -59,10 +60,12 @@ def calibration_table(results: dict) -> tuple[list, list, str]:
 
 
 def _calibration_checks(results: dict) -> list[str]:
-    cal = results.get("calibration") or {}
+    cal, method = results.get("calibration") or {}, confidence_method(results.get("methods", ("pcreg",)))
+    if method is None:
+        return []
     if not cal.get("pixels"):
-        return ["- pcreg's confidence: no scored pixel"]
-    return [f"- pcreg's confidence is calibrated (expected calibration error <= 0.02 over all known pixels): "
+        return [f"- {method}'s confidence: no scored pixel"]
+    return [f"- {method}'s confidence is calibrated (expected calibration error <= 0.02 over all known pixels): "
             f"{'met' if cal['ece'] <= 0.02 else 'NOT met'} ({cal['ece']:.4f})",
             f"- the most confident 80% of known pixels have at most a third of the error rate of all: "
             f"{'met' if cal['top80_ratio'] <= 1 / 3 else 'NOT met'} ({cal['error_top80']:.2f}% against "
@@ -73,8 +76,8 @@ def checks(results: dict) -> str:
     """pcreg against the DIS baselines, plain and the unregistered key frame (Markdown)."""
     avg, clips = results["average_reduction"], results["datasets"]
     lines = ["### Checks\n"]
-    if "pcreg" not in avg:
-        return "\n".join(lines + ["- pcreg was not run\n"])
+    if "pcreg" not in avg:  # pcreg_object's confidence alone, when it ran
+        return "\n".join(lines + ["- pcreg was not run", *_calibration_checks(results)]) + "\n"
     if is_many_classes(results):
         return "\n".join(lines + classes_checks(results) + _calibration_checks(results)) + "\n"
     base = [m for m in BASELINE_NAMES if m in avg]
@@ -145,7 +148,7 @@ def _reliability(results: dict):
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(8.4, 3.6))
     conf = [b["confidence"] for b in curve]
     ax.plot([0, 1], [0, 1], color="0.6", ls="--", lw=1, label="calibrated")
-    ax.plot(conf, [b["accuracy"] for b in curve], "o-", color="C3", lw=1.4, label="pcreg")
+    ax.plot(conf, [b["accuracy"] for b in curve], "o-", color="C3", lw=1.4, label=confidence_method(results["methods"]))
     ax.set_xlabel("confidence of the label")
     ax.set_ylabel("share of labels that are right")
     ax.set_title(f"reliability (ECE {results['calibration']['ece']:.4f})")
@@ -200,14 +203,15 @@ def write_outputs(results: Results, out: str | Path, *, recording: str | Path | 
     b = doc["primary_backend"]
     h, rows, footer = table(doc)
     ph, prows = per_frame(doc)
-    ch, crows, cfooter = calibration_table(doc)
+    calibrated = confidence_method(doc["methods"])  # None: no method with a confidence ran, no table of one
     config = doc.get("config", {})
     several = config.get("keys") or config.get("key_every")  # --keys, --key-every: more than the first frame
     title = f"Labelling a stream from its key frame{'s' if several else ''}: mean error % per clip"
     davis = davis_tables(doc)
     tables = {f"stream_{b}": (title, h, rows, footer),
               "stream_frames": ("Error % per frame", ph, prows),
-              "stream_calibration": ("pcreg's confidence: calibration per clip", ch, crows, cfooter),
+              **({} if calibrated is None else
+                 {"stream_calibration": (f"{calibrated}'s confidence: calibration per clip", *calibration_table(doc))}),
               **davis, **classes_tables(doc)}
     return write_files(out, doc, recording=recording, tables=tables, texts={"checks.md": checks(doc)},
                        digits={name: DIGITS for name in davis},

@@ -46,3 +46,11 @@ def test_an_exact_quarter_or_half_turn_given_as_the_global_step_is_kept_to_a_fra
     # matches, not the 1.1 (quarter turn) and 1.6 px (half turn) the other centres left
     assert np.median(err) < 0.4, np.median(err)
     assert np.percentile(err, 95) < 1.0, np.percentile(err, 95)
+
+
+def test_a_dense_result_says_no_check_judged_it_where_a_global_one_says_whether_one_marked_it():
+    """``result.trusted`` raised AttributeError on a dense result, which a program branching on it met first
+    (``pcreg register --json`` said null); it is None, and its global step's checks are ``global_result.trusted``."""
+    ref = _textured()
+    res = register_dense(ref, ref.copy())
+    assert res.trusted is None and isinstance(res.global_result.trusted, bool)

@@ -103,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
              *_dark_notes(((args.reference, ref_stored), (args.moving, stored)))]
     if args.json:
         # trusted: no check marked the result (null for a dense result, whose field no check judges)
-        print_json({"ok": True, **result.to_dict(), "trusted": getattr(result, "trusted", None), "notes": notes})
+        print_json({"ok": True, **result.to_dict(), "trusted": result.trusted, "notes": notes})
     else:
         print(result)
         summary = _summary(result, args.model, tested=config.plausibility.min_inlier_ratio is not None)

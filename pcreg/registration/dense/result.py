@@ -81,6 +81,12 @@ class DenseRegistrationResult:
         return self.matrix
 
     @property
+    def trusted(self) -> None:
+        """None: no check judges a dense field (``pcreg register --json`` says null). Its global step's checks are
+        :attr:`global_result`'s (``global_result.trusted``)."""
+        return None
+
+    @property
     def displacement(self) -> np.ndarray:
         """(H, W, 2) float32: the field minus the global transform (full-resolution px)."""
         return self.field - field_from_matrix(self.matrix, self.field.shape[:2])

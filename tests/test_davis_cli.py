@@ -298,9 +298,26 @@ def test_the_calibration_table_is_of_the_follower_when_it_runs_without_pcreg(tmp
     out = tmp_path / "out"
     assert main(["evaluate", "stream", "--data", f"davis:{seq}", "--methods", "plain,pcreg_object", "--out", str(out)]) == 0
     table = (out / "stream_calibration.md").read_text()
-    assert "pcreg_object's confidence" in table and "nan" not in table, table
+    assert "pcreg_object's confidence" in table and "nan" not in table and "`pcreg run --follow object` writes" in table, table
     assert json.loads((out / "results.json").read_text())["calibration"]["pixels"] > 0
     assert "pcreg_object's confidence is calibrated" in (out / "checks.md").read_text()
     assert main(["evaluate", "stream", "--data", f"davis:{seq}", "--methods", "plain", "--out", str(tmp_path / "plain")]) == 0
     assert not (tmp_path / "plain" / "stream_calibration.md").exists()
     assert "confidence" not in (tmp_path / "plain" / "checks.md").read_text()
+
+
+def test_a_resumed_evaluation_runs_again_a_clip_whose_follower_counts_an_earlier_version_kept(tmp_path):
+    """A clip kept by a version that counted no confidence of the follower (or counted it by other coefficients) was
+    read back as it was: the resumed run's calibration table held 0 pixels under the follower's name."""
+    seq = write_pcreg_layout(tmp_path / "seq", frames_and_masks(6, shape=(96, 128)))
+    out = tmp_path / "out"
+    args = ["evaluate", "stream", "--data", f"davis:{seq}", "--methods", "plain,pcreg_object", "--out", str(out)]
+    assert main(args) == 0
+    unit = out / "units" / "seq_reference.json"
+    kept = json.loads(unit.read_text())
+    assert kept["calibrated"][0] == "pcreg_object"
+    del kept["calibrated"]
+    kept["calibration"] = np.zeros_like(np.array(kept["calibration"])).tolist()
+    unit.write_text(json.dumps(kept))
+    assert main(args) == 0
+    assert json.loads((out / "results.json").read_text())["calibration"]["pixels"] > 0

@@ -41,7 +41,8 @@ class Results:
         - ``k`` (classification): the training sizes of cases I and III per dataset;
         - ``weight_search`` (classification): the thesis feature weights found per dataset;
         - ``average_reduction`` (stream): each method's mean over clips of its reduction of plain's error (%);
-        - ``calibration`` (stream): pcreg's confidence over every clip's known pixels
+        - ``calibration`` (stream): pcreg's confidence (pcreg_object's when pcreg did not run; with neither, a
+          section of no pixels) over every clip's known pixels
           (:func:`pcreg.experiments.stream.calibration`);
         - ``davis`` (stream on DAVIS): J and F per sequence and method, beside the published methods
           (:func:`pcreg.experiments.stream_davis.summarise_davis`).

@@ -27,7 +27,8 @@ The methods (:data:`METHODS`):
 - ``pcreg_object``: what ``pcreg run --follow object`` does: one moving object followed from the key frame's
   mask (:class:`pcreg.pipeline.follow.ObjectFollower`), for DAVIS; not meant for CamVid's scenes.
 
-``pcreg``'s confidence (:attr:`pcreg.pipeline.stream.StepReport.confidence`) is scored too, pooled over
+``pcreg``'s confidence (:attr:`pcreg.pipeline.stream.StepReport.confidence`; ``pcreg_object``'s when ``pcreg`` does
+not run, :func:`~pcreg.experiments.stream_methods.confidence_method`) is scored too, pooled over
 the known pixels of every scored frame (:func:`calibration`): the expected calibration error over ten
 bins of confidence, and the error of the most confident 80% of pixels against the error of all.
 
@@ -51,8 +52,8 @@ from ..recording.null import NULL_RECORDER
 from .results import Results
 from .stream_davis import DavisScores, chain, check_davis_config, is_davis, summarise_davis
 from .stream_methods import (BASELINES, CONFIDENCE_LEVELS, METHODS, OBJECT_METHOD, PCREG_METHODS, PRESET_OF,  # noqa: F401
-                             Timed, calibration, calibration_counts, confidence_method,
-                             make_method)
+                             Timed, calibration, calibration_counts, calibration_stamp,
+                             confidence_method, make_method)
 
 @dataclass(frozen=True)
 class StreamConfig:
@@ -205,7 +206,7 @@ def run_clip(frames, *, methods=METHODS, key_every: int | None = None, backend: 
     means = {m: float(np.nanmean([r["errors"][m] for r in scored])) if scored else float("nan") for m in methods}
     per_frame_ms = {m: 1000.0 * s / max(1, len(rows)) for m, s in seconds.items()}
     return {"frames": rows, "means": means, "ms_per_frame": per_frame_ms, "key_frames": keys,
-            "calibration": counts.tolist()}
+            "calibration": counts.tolist(), "calibrated": calibration_stamp(methods)}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -303,16 +304,17 @@ def _recording_hook(rec: RecorderProtocol, clip: str, counter: list[int], record
 
 
 def kept(unit, result: dict) -> bool:
-    """Whether a clip's kept result holds what :func:`summarise` reads of it: every method's mean, pcreg's confidence
-    counts (``calibration``), on DAVIS its J and F (``davis``), with ``--classes`` its IoU; a clip kept without them
-    is run again, not left out."""
+    """Whether a clip's kept result holds what :func:`summarise` reads of it: every method's mean, the confidence
+    counts (``calibration``; the follower's made with its coefficients of now, :func:`calibration_stamp`), on DAVIS
+    its J and F (``davis``), with ``--classes`` its IoU; a clip kept without them is run again, not left out."""
     from .units import holds
 
     cfg = unit.config
     needs = ("frames", "means", "ms_per_frame", "key_frames", "n_frames", "width", "height", "calibration",
              *(("davis",) if is_davis(cfg.data) else ()), *(("miou", "iou") if cfg.classes is not None else ()))
+    stamp = calibration_stamp(cfg.methods)  # the follower's counts, kept by a version whose confidence differs
     return (holds(result, unit, needs, same=("dataset", "backend")) and isinstance(result["means"], dict)
-            and all(m in result["means"] for m in cfg.methods))
+            and all(m in result["means"] for m in cfg.methods) and (stamp is None or result.get("calibrated") == stamp))
 
 
 def plan_units(config: StreamConfig, names: list[str]) -> list:

@@ -13,7 +13,7 @@ import numpy as np
 from .._progress import unit_step
 
 __all__ = ["METHODS", "PCREG_METHODS", "OBJECT_METHOD", "BASELINES", "PRESET_OF", "CONFIDENCE_LEVELS", "calibration_counts",
-           "calibration", "confidence_method", "KeyPrior", "FixedPrior", "make_method", "Timed", "counted", "kernels_ready"]
+           "calibration", "confidence_method", "calibration_stamp", "KeyPrior", "FixedPrior", "make_method", "Timed", "counted", "kernels_ready"]
 
 #: Methods scored per frame, in table order.
 METHODS: tuple[str, ...] = ("plain", "unregistered", "pcreg", "pcreg_half", "pcreg_flow", "dense_key", "dense_previous",
@@ -47,6 +47,17 @@ def confidence_method(methods) -> str | None:
     """The method whose confidence an evaluation calibrates: ``pcreg`` when it runs, else :data:`OBJECT_METHOD`
     (what ``pcreg run --follow object`` writes) when it does; None when neither runs."""
     return next((m for m in ("pcreg", OBJECT_METHOD) if m in methods), None)
+
+
+def calibration_stamp(methods) -> list | None:
+    """What a clip's kept calibration counts must have been made with, for them to be read again (``pcreg evaluate
+    stream`` resumed): ``[pcreg_object, slope, offset]`` where the follower's confidence is the one calibrated (its
+    coefficients, which no option sets, may change between versions); None otherwise (nothing to check)."""
+    if confidence_method(methods) != OBJECT_METHOD:
+        return None
+    from ..pipeline.follow import CONFIDENCE_OFFSET, CONFIDENCE_SLOPE
+
+    return [OBJECT_METHOD, CONFIDENCE_SLOPE, CONFIDENCE_OFFSET]
 
 
 #: Levels of the confidence histograms (:func:`calibration_counts`): the 8-bit steps of a confidence PNG.

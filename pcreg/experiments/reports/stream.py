@@ -44,8 +44,8 @@ def per_frame(results: dict) -> tuple[list, list]:
 
 
 def calibration_table(results: dict) -> tuple[list, list, str]:
-    """The confidence of pcreg (or of pcreg_object, when pcreg did not run) per clip and over all clips: expected calibration error, error of all known
-    pixels and of the most confident 80%, and their ratio."""
+    """The confidence of pcreg (or of pcreg_object, when pcreg did not run) per clip and over all clips: expected
+    calibration error, error of all known pixels and of the most confident 80%, and their ratio."""
     header = ["clip", "known pixels", "ECE", "error %", "error % of the most confident 80%", "ratio"]
     items = [(n, c.get("calibration") or {}) for n, c in results["datasets"].items()]
     items.append(("all clips", results.get("calibration") or {}))
@@ -54,7 +54,8 @@ def calibration_table(results: dict) -> tuple[list, list, str]:
 
     rows = [[n, c.get("pixels", 0), fixed(c.get("ece"), 4), c.get("error", float("nan")),
              c.get("error_top80", float("nan")), fixed(c.get("top80_ratio"), 3)] for n, c in items]
-    footer = ("\n(the confidence of each label pcreg writes, 10 equal bins for the expected calibration error; "
+    run = "`pcreg run --follow object`" if confidence_method(results["methods"]) == "pcreg_object" else "`pcreg run`"
+    footer = (f"\n(the confidence of each label {run} writes, 10 equal bins for the expected calibration error; "
               "unknown truth left out)\n")
     return header, rows, footer
 

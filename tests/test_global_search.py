@@ -87,6 +87,11 @@ def test_evidence_tells_a_true_alignment_from_chance():
         warnings.simplefilter("error")  # its normals overflowed, and numpy printed a warning beside the one line
         squeezed = alignment_evidence(flat, mov, ref, tree, tolerance=1.0)
     assert squeezed.inlier_ratio < 2 * squeezed.chance_ratio + 0.05
+    # an affine refinement of a strongly tilted page (--model affine) ended on an exactly singular linear part:
+    # np.linalg.inv raised, and `pcreg register` ended "internal error, a bug in pcreg: LinAlgError" (exit 1)
+    line = np.array([[1.0, 2.0, 60.0], [0.5, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    collapsed = alignment_evidence(line, mov, ref, tree, tolerance=1.0)
+    assert collapsed.inlier_ratio == 0.0 and collapsed.chance_ratio == 0.0
 
 
 def test_photometric_agreement():

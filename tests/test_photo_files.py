@@ -298,3 +298,19 @@ def test_a_jpeg_without_its_end_marker_reads_as_viewers_show_it(tmp_path):
     with pytest.raises(pcreg.InputError, match=r"header\.jpg: cannot decode image"):
         pcreg.load_image(tmp_path / "header.jpg")
     assert main(["register", str(tmp_path / "whole.jpg"), str(tmp_path / "no_end.jpg")]) == 0
+
+
+@pytest.mark.data
+def test_a_page_tilted_far_in_depth_under_an_affine_model_is_refused_not_a_bug(shared_data, tmp_path, capsys):
+    """The shared page photographed tilted in depth (its top edge pulled in by a quarter of the width) under
+    ``--model affine``: a refinement ended on a motion that flattens the image onto a line, whose inverse numpy
+    could not take, and the command ended "internal error, a bug in pcreg: LinAlgError: Singular matrix" (exit 1)."""
+    page = shared_data / "photos" / "page.png"
+    im = cv2.imread(str(page))
+    h, w = im.shape[:2]
+    corners = np.float32([[0, 0], [w, 0], [w, h], [0, h]])
+    tilted = np.float32([[w * 0.25, h * 0.125], [w * 0.75, 0], [w, h], [0, h]])
+    path = tmp_path / "tilted.png"
+    cv2.imwrite(str(path), cv2.warpPerspective(im, cv2.getPerspectiveTransform(corners, tilted), (w, h)))
+    assert main(["register", str(page), str(path), "--model", "affine"]) == 3
+    assert "registration refused" in capsys.readouterr().err

@@ -328,8 +328,12 @@ def alignment_evidence(T: np.ndarray, mov: ImageCloud, ref: ImageCloud, tree, *,
     ok = np.isfinite(dist)
     L = T[:2, :2]
     # Normals transform by the inverse transpose of the linear part; only their direction matters.
+    try:
+        L_inv = np.linalg.inv(L)
+    except np.linalg.LinAlgError:  # a motion that flattens the image onto a line: no normal survives it
+        L_inv = np.full((2, 2), np.nan)
     with np.errstate(over="ignore", invalid="ignore"):  # a nearly singular L: normals that agree with nothing (NaN)
-        n_mov = mov.normals[inside][ok] @ np.linalg.inv(L)
+        n_mov = mov.normals[inside][ok] @ L_inv
         n_mov /= np.maximum(np.linalg.norm(n_mov, axis=1, keepdims=True), 1e-12)
         cos = np.einsum("ij,ij->i", n_mov, ref.normals[idx[ok]])
     c_min = np.cos(np.deg2rad(max_angle_deg))

@@ -95,11 +95,14 @@ def settle(best: Candidate, moving, search, test, shape: tuple[int, ...]
     if not rivals:
         return chosen, found, None
     d, rival = max(rivals, key=lambda m: m[0])
+    model = search.model
+    wider = "" if model == "projective" else (f"; so does a motion no {model} one holds, where no alignment is right "
+                                               "(a view tilted in depth: --model projective)")
     return chosen, found, RegistrationError(
         f"registration refused: the images do not pin the motion down: refined again from a start {NUDGE_PX:g} px off, "
         f"the alignment settled {d:.1f} px from the result with as many edge points lined up "
         f"({100 * rival.inlier_ratio:.1f}% against {100 * chosen.inlier_ratio:.1f}%): blurred, featureless or repetitive "
-        "content fits many motions")
+        f"content fits many motions{wider}")
 
 
 class _Around:

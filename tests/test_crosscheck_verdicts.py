@@ -356,3 +356,41 @@ def test_a_row_that_scales_fits_better_far_from_the_origin_too_and_the_suite_say
     write_results(tmp_path / "suite", rows)
     report = (tmp_path / "suite" / "results.md").read_text()
     assert "Fits the clouds better than the reference" in report and "- L / py:known2:truth: RMS distance" in report
+
+
+def _surface(seed: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """A smooth surface a unit across, and the same turned 20 degrees about z and shifted."""
+    rng = np.random.default_rng(seed)
+    u, v = rng.random((2, 2000))
+    a = np.c_[u, v, 0.3 * np.sin(3 * u) * np.cos(2 * v)]
+    t = 0.35
+    R = np.array([[np.cos(t), -np.sin(t), 0], [np.sin(t), np.cos(t), 0], [0, 0, 1]])
+    return a, (a - a.mean(0)) @ R.T + a.mean(0) + [0.05, 0.02, 0]
+
+
+def test_a_gate_that_takes_every_pair_leaves_the_reference_run_to_convergence():
+    """A gate of 1e9 on clouds a unit across (every pair): "to convergence" stopped on the inlier RMSE's change
+    below 1e-12 of the gate, 1e-3, after 9 iterations at RMSE 0.024, and small_gicp, at the pose the reference's own
+    row reached, was said to disagree and to fit better than ICP's best."""
+    pytest.importorskip("small_gicp")
+    a, b = _surface()
+    r = crosscheck_implementations(a, b, implementations=["small_gicp"],
+                                   options=ICPOptions(max_correspondence_distance=1e9, max_iteration=200))
+    assert r.reference_at_convergence["inlier_rmse"] < 1e-9, r.reference_at_convergence
+    assert r.rows["small_gicp"]["agrees"] is True and r.rows["small_gicp"]["better_fit"] is None
+
+
+def test_a_gate_past_what_a_float_squares_is_a_reason_on_a_row_not_a_bug(tmp_path, capsys):
+    """``--max-distance 1e160``: the capped RMS of the better-fit test squared the gate (OverflowError: exit 1), and
+    KISS-ICP's map size did too (its row failed with "Numerical result out of range")."""
+    from pcreg.cli import main
+
+    a, b = _surface()
+    np.save(tmp_path / "a.npy", a)
+    np.save(tmp_path / "b.npy", b)
+    args = ["crosscheck", str(tmp_path / "a.npy"), str(tmp_path / "b.npy"), "--max-distance", "1e160", "--json"]
+    with_kiss = importlib.util.find_spec("kiss_icp") is not None
+    assert main([*args, "--with", "pycpd" + (",kiss-icp" if with_kiss else "")]) == 0
+    out = capsys.readouterr().out
+    if with_kiss:
+        assert "its map would reserve" in out and "Numerical result" not in out, out

@@ -102,6 +102,12 @@ def test_a_table_from_a_file_is_kept_in_run_json_and_resume_compares_it(syntheti
     rc, err = _run([*base, "--classes", tmp_path / "other.txt"], capsys)
     assert rc == 2 and len(err) == 1 and "holds a run with other options" in err[0], err
     assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == before
+    # a table against none, or one of other length: the tables as a person tells them apart, where a Python dict
+    # cut off at its first class's colour was said
+    (tmp_path / "four.txt").write_text("background:0,0,0::\nfloor:10,200,10::\nwall:200,10,10::\nsky:1,2,3::\n")
+    rc, err = _run([*base, "--classes", tmp_path / "four.txt"], capsys)
+    assert rc == 2 and "classes.classes: a table of 3 classes (floor, wall, background) then, a table of 4 classes (" in err[0], err
+    assert "{" not in err[0], err
 
 
 def test_more_than_two_classes_reach_the_classifier(synthetic, tmp_path, capsys, monkeypatch):

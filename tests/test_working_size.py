@@ -99,6 +99,8 @@ def test_a_stream_at_half_size_labels_the_full_frames_better_than_naive_bayes_an
     with pytest.raises(InputError, match="frames of 64x48 are too small for the similarity model") as refused:
         pcreg.Propagator(half.classifier, model="similarity").reset(key.image[::5, ::5], key.labels[::5, ::5])
     assert "levels=3)" in str(refused.value) and "--levels" not in str(refused.value)  # register=, not pcreg run
+    # pcreg run has no levels to set: it said only levels=3; the models that take such frames are named
+    assert str(refused.value).endswith("the dense model (the default) and the flow model take smaller frames")
     similar = pcreg.Propagator(half.classifier, model="similarity", scale=0.5)  # a global model at half size
     similar.reset(key.image, key.labels)
     assert similar.step(frames[1].image).shape == key.labels.shape and similar.last.registered

@@ -227,6 +227,12 @@ class SmallGicpGicp(_SmallGicpSurface):
     description = "small_gicp align(), registration_type='GICP' (generalized ICP, plane-to-plane)"
 
 
+def _big(count: int) -> str:
+    """A count, which may be past what a float holds (a map under a gate of 1e160), in three figures."""
+    digits = len(str(count))
+    return f"{count:.3g}" if digits < 300 else f"{str(count)[0]}.{str(count)[1:3]}e+{digits - 1}"
+
+
 class KissIcp(Implementation):
     name = "kiss-icp"
     comparability = FIXED_POINT
@@ -249,7 +255,10 @@ class KissIcp(Implementation):
         v = float(pinned.max_correspondence_distance)
         closest = float(cKDTree(t).query(t, k=2)[0][:, 1].min()) if len(t) > 1 else v
         voxels = len(np.unique(np.floor(t / v).astype(np.int64), axis=0))
-        return int(np.ceil((v / (0.5 * closest)) ** 2 + 1)), voxels, closest
+        ratio = v / (0.5 * closest)
+        if ratio > 1e150:  # its square is past a float (a gate of 1e160): Python's integers hold it, the map refuses it
+            return int(np.ceil(ratio)) ** 2 + 1, voxels, closest
+        return int(np.ceil(ratio ** 2 + 1)), voxels, closest
 
     def settings(self, pinned):
         pinned = _about_centroid(pinned)[0]
@@ -269,7 +278,9 @@ class KissIcp(Implementation):
 
     @staticmethod
     def _kernel(pinned):
-        return 1e10 * max(1.0, float(pinned.max_correspondence_distance) ** 2)
+        # the gate's square, capped where a float holds it 1e10 times over (a gate of 1e160 raised OverflowError);
+        # residuals of clouds pcreg reads (coordinates up to 1e15) stay far below it
+        return 1e10 * max(1.0, min(float(pinned.max_correspondence_distance), 1e140) ** 2)
 
     def _run(self, pinned, *, trace):
         from kiss_icp.mapping import VoxelHashMap
@@ -284,8 +295,8 @@ class KissIcp(Implementation):
         n, voxels, closest = self._map_size(pinned)
         if 24 * n * voxels > self.max_map_bytes:
             raise ImplementationError(
-                f"its map would reserve {24 * n * voxels / 2**30:.3g} GiB to keep every target point ({voxels} voxels "
-                f"of {n} points: the closest distinct target points are {closest:.3g} apart, the gate "
+                f"its map would reserve {_big(24 * n * voxels // 2**30)} GiB to keep every target point ({voxels} voxels "
+                f"of {_big(n)} points: the closest distinct target points are {closest:.3g} apart, the gate "
                 f"{float(pinned.max_correspondence_distance):.3g}); voxel-downsample the clouds (--voxel-size) or "
                 "narrow the gate")
         s = self.settings(given)

@@ -170,8 +170,11 @@ def truncated_rms(fitness: float, inlier_rmse: float, max_distance: float) -> fl
     """The RMS over every source point of its distance to its nearest target point, capped at ``max_distance``:
     sqrt(fitness · inlier_rmse² + (1 - fitness) · max_distance²), from two entries of an ICP's trace. Neither a
     correspondence step nor a point-to-point step raises it (Besl & McKay's monotonicity, with the points beyond
-    ``max_distance`` counted at it); a linearised step can overshoot and raise it."""
-    return math.sqrt(fitness * inlier_rmse ** 2 + (1.0 - fitness) * max_distance ** 2)
+    ``max_distance`` counted at it); a linearised step can overshoot and raise it. A gate past 1e150, whose square a
+    float cannot hold (``pcreg crosscheck --max-distance 1e160`` raised OverflowError), is taken without squaring."""
+    if max_distance < 1e150:  # the sum of squares, as it has always been read
+        return math.sqrt(fitness * inlier_rmse ** 2 + (1.0 - fitness) * max_distance ** 2)
+    return math.hypot(math.sqrt(fitness) * inlier_rmse, math.sqrt(max(0.0, 1.0 - fitness)) * max_distance)
 
 
 def scores_at(source: np.ndarray, target: np.ndarray, T: np.ndarray, max_distance: float) -> tuple[float, float]:

@@ -392,7 +392,12 @@ def _differences(before: object, now: dict) -> str:
             v = v if isinstance(v, dict) else {}
             return " ".join(f"--{k} {v[k]}" for k, default in (("start", 0), ("stop", None), ("every", 1))
                             if v.get(k, default) != default) or "every frame"
-        return short_repr(d["v"]) if "v" in d else "not set"
+        v = d.get("v")
+        if name == "classes" and isinstance(v, dict) and isinstance(v.get("classes"), list):  # a class table
+            return _table_shown(v["classes"])
+        if name == "classes.classes" and isinstance(v, list):  # its classes (one table longer than the other)
+            return _table_shown(v)
+        return short_repr(v) if "v" in d else "not set"
 
     names = sorted(k for k in set(before) | set(now) if (k in before, before.get(k)) != (k in now, now.get(k)))
     if "frames" in names and _reaches_further({**now, "frames": before.get("frames")}, now):
@@ -402,6 +407,17 @@ def _differences(before: object, now: dict) -> str:
         name, then, latest = _first_difference(k, before, now)
         said.append(f"{name}: {shown(name, then)} then, {shown(name, latest)} now")
     return f" ({'; '.join(said)}{'; ...' if len(names) > 3 else ''})" if said else ""
+
+
+def _table_shown(classes: list) -> str:
+    """A kept class table as a person names it: a built-in table's name, else its first class names and count."""
+    from ..classes import TABLES
+
+    for key, table in TABLES.items():
+        if [c.get("name") for c in classes if isinstance(c, dict)] == [c.name for c in table.classes]:
+            return f"--classes {key}"
+    names = [str(c.get("name")) for c in classes[:3] if isinstance(c, dict)]
+    return f"a table of {len(classes)} classes ({', '.join(names)}{', ...' if len(classes) > 3 else ''})"
 
 
 def _first_difference(name: str, before: dict, now: dict) -> tuple[str, dict, dict]:

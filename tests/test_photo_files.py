@@ -300,18 +300,24 @@ def test_a_jpeg_without_its_end_marker_reads_as_viewers_show_it(tmp_path):
     assert main(["register", str(tmp_path / "whole.jpg"), str(tmp_path / "no_end.jpg")]) == 0
 
 
+def _tilted(photo, tmp_path):
+    """``photo`` seen tilted in depth (its top edge pulled in by a quarter of the width), saved as a PNG: its path."""
+    im = cv2.imread(str(photo))
+    h, w = im.shape[:2]
+    corners = np.float32([[0, 0], [w, 0], [w, h], [0, h]])
+    tilted = np.float32([[w * 0.25, h * 0.125], [w * 0.75, 0], [w, h], [0, h]])
+    path = tmp_path / "tilted.png"
+    cv2.imwrite(str(path), cv2.warpPerspective(im, cv2.getPerspectiveTransform(corners, tilted), (w, h)))
+    return path
+
+
 @pytest.mark.data
 def test_a_page_tilted_far_in_depth_under_an_affine_model_is_refused_not_a_bug(shared_data, tmp_path, capsys):
     """The shared page photographed tilted in depth (its top edge pulled in by a quarter of the width) under
     ``--model affine``: a refinement ended on a motion that flattens the image onto a line, whose inverse numpy
     could not take, and the command ended "internal error, a bug in pcreg: LinAlgError: Singular matrix" (exit 1)."""
     page = shared_data / "photos" / "page.png"
-    im = cv2.imread(str(page))
-    h, w = im.shape[:2]
-    corners = np.float32([[0, 0], [w, 0], [w, h], [0, h]])
-    tilted = np.float32([[w * 0.25, h * 0.125], [w * 0.75, 0], [w, h], [0, h]])
-    path = tmp_path / "tilted.png"
-    cv2.imwrite(str(path), cv2.warpPerspective(im, cv2.getPerspectiveTransform(corners, tilted), (w, h)))
+    path = _tilted(page, tmp_path)
     assert main(["register", str(page), str(path), "--model", "affine"]) == 3
     assert "registration refused" in capsys.readouterr().err
 
@@ -322,12 +328,7 @@ def test_a_view_tilted_in_depth_refused_under_an_affine_model_points_to_the_proj
     settles elsewhere, whose reason named only "blurred, featureless or repetitive content" (the horse is none of
     these); the model's narrowness is said too, with the option that registers it (projective: within 0.1 px)."""
     horse = shared_data / "photos" / "horse.png"
-    im = cv2.imread(str(horse))
-    h, w = im.shape[:2]
-    corners = np.float32([[0, 0], [w, 0], [w, h], [0, h]])
-    tilted = np.float32([[w * 0.25, h * 0.125], [w * 0.75, 0], [w, h], [0, h]])
-    path = tmp_path / "tilted.png"
-    cv2.imwrite(str(path), cv2.warpPerspective(im, cv2.getPerspectiveTransform(corners, tilted), (w, h)))
+    path = _tilted(horse, tmp_path)
     assert main(["register", str(horse), str(path), "--model", "affine"]) == 3
     err = capsys.readouterr().err
     assert "do not pin the motion down" in err and "no affine one holds" in err and "--model projective" in err, err

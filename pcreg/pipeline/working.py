@@ -61,8 +61,9 @@ class WorkingSize:
             motion.check_size(self.shape)
         except InputError as exc:
             if not self.scaled:
-                other = ("; the dense model (the default) and the flow model take smaller frames"
-                         if model in ("translation", "rigid", "similarity", "affine", "projective") else "")
+                from ..registration.transforms import MODELS  # the global models, each on a pyramid of levels
+
+                other = "; the dense model (the default) and the flow model take smaller frames" if model in MODELS else ""
                 raise InputError(f"frames of {W}x{H} are too small for the {model} model ({exc}){other}") from None
             raise InputError(f"scale {scale:g} works at {w}x{h} for frames of {W}x{H}: too small for the "
                              f"{motion.name} ({exc}){advice}") from None

@@ -410,11 +410,15 @@ def _differences(before: object, now: dict) -> str:
 
 
 def _table_shown(classes: list) -> str:
-    """A kept class table as a person names it: a built-in table's name, else its first class names and count."""
+    """A kept class table as a person names it: a built-in table's name (the same ids, names and colours), else its
+    first class names and count."""
+    import json
+
     from ..classes import TABLES
+    from ..classes.files import table_json
 
     for key, table in TABLES.items():
-        if [c.get("name") for c in classes if isinstance(c, dict)] == [c.name for c in table.classes]:
+        if json.loads(table_json(table))["classes"] == classes:
             return f"--classes {key}"
     names = [str(c.get("name")) for c in classes[:3] if isinstance(c, dict)]
     return f"a table of {len(classes)} classes ({', '.join(names)}{', ...' if len(classes) > 3 else ''})"

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ..registration.transforms import MODELS
+from ..registration.transforms import MODELS, with_article
 from ._common import add_record_arguments, arg_float, arg_int, init_refusal, open_recorder, positive_int, print_json
 
 
@@ -239,8 +239,7 @@ def _model_fit_notes(result, model: str) -> list[str]:
     fit = None if evidence is None else evidence.model_fit
     if fit is None or fit.fits:
         return []
-    article = "an" if model[0] in "aeiou" else "a"  # an affine motion
-    return [f"the images differ by more than {article} {model} motion, or this result is off: a {fit.model} fit "
+    return [f"the images differ by more than {with_article(model)} motion, or this result is off: a {fit.model} fit "
             f"aligns {100 * fit.inlier_ratio:.1f}% of the edge points against this result's "
             f"{100 * fit.result_inlier_ratio:.1f}% (at half size) and moves some by {fit.largest_shift_px:.1f} px "
             f"(--model {fit.model} registers such a view)"]

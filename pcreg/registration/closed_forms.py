@@ -11,7 +11,7 @@ import numpy as np
 from .._jit import njit
 from ..errors import RegistrationError
 from .choices import WEIGHTS
-from .transforms import apply
+from .transforms import apply, with_article
 
 MIN_POINTS = {"translation": 1, "rigid": 2, "similarity": 2, "affine": 3, "projective": 4}
 #: The same in 3-D: a rotation needs three points off one line, an affine map four off one plane (no projective model).
@@ -462,8 +462,7 @@ def rank_problem(points: np.ndarray, model: str) -> str | None:
     needed_rank = {"rigid": d - 1, "similarity": d - 1, "affine": d, "projective": 2}[model]
     if rank < needed_rank:
         what = "coincident" if rank == 0 else ("collinear" if rank == 1 else "coplanar")
-        article = "an" if model[0] in "aeiou" else "a"
-        return f"the points are {what}: they cannot determine {article} {model} transform"
+        return f"the points are {what}: they cannot determine {with_article(model)} transform"
     return None
 
 
@@ -576,8 +575,7 @@ def check_support(T: np.ndarray, source: np.ndarray, target: np.ndarray, max_dis
         if not converged and not scale < SHRUNK:
             return
         shrank = "; the ICP shrank the source onto them" if scale < SHRUNK else ""
-        article = "an" if model[0] in "aeiou" else "a"
         raise RegistrationError(
             f"registration refused: at the result (scale {scale:.3g}) the source's pairs reach {len(matched)} target "
-            f"point(s), which cannot determine {article} {model} transform ({exc}){shrank}; give an init nearer the answer, or "
+            f"point(s), which cannot determine {with_article(model)} transform ({exc}){shrank}; give an init nearer the answer, or "
             "another max_correspondence_distance") from None

@@ -181,8 +181,9 @@ class Plausibility:
 
     def _a_motion(self, shape: tuple[int, ...] | None = None) -> str:
         """:meth:`_motion` after its article ("an affine motion")."""
-        motion = self._motion(shape)
-        return ("an " if motion[0] in "aeiou" else "a ") + motion
+        from .transforms import with_article
+
+        return with_article(self._motion(shape))
 
     def _sizes(self, shape: tuple[int, ...] | None) -> str:
         """A note for a refusal of images whose sizes differ by more than the search's scales reach (about 2x a

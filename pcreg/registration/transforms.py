@@ -15,6 +15,11 @@ from ..validation import real_matrix, short_repr
 MODELS = ("translation", "rigid", "similarity", "affine", "projective")
 
 
+def with_article(words: str) -> str:
+    """``words`` after the article its first letter takes: "an affine motion", "a rigid transform"."""
+    return ("an " if words[:1] in tuple("aeiou") else "a ") + words
+
+
 def _matrix(matrix, name: str = "the matrix", sizes: tuple[int, ...] = (3, 4), *, finite: bool = True) -> np.ndarray:
     """``matrix`` as a float64 array, a homogeneous transform of one of ``sizes`` (3: 2-D, 4: 3-D), finite where
     ``finite``; else an :class:`InputError` naming ``name``."""

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .cloud_files import PcdHeader, check_cloud_file, check_npy_file, pcd_header
-from .cloud_text import check_text_cloud, number_columns, read_columns, read_pts
+from .cloud_files import PcdHeader, _ply_header, check_cloud_file, check_npy_file, pcd_header
+from .cloud_text import check_last_line, check_text_cloud, number_columns, read_columns, read_pts
 from .errors import InputError
 from .registration.api import check_cloud
 from .validation import check_path, check_point_count, max_pixels
@@ -42,6 +42,8 @@ def load_cloud(path: str | os.PathLike, *, max_points: int | None = None) -> np.
         raise InputError(f"{path}: unknown point-cloud format {suffix!r} (use {', '.join(CLOUD_SUFFIXES)})")
     limit = max_pixels(max_points)
     check_cloud_file(path, limit=limit)
+    if _text(path, suffix):
+        check_last_line(path)  # a text cloud cut inside its last number holds the right count of numbers
     if suffix == ".npy":
         shape, _ = check_npy_file(path, limit)
         if len(shape) != 2 or shape[1] not in (2, 3):
@@ -67,6 +69,15 @@ def load_cloud(path: str | os.PathLike, *, max_points: int | None = None) -> np.
                 raise InputError(f"{path}: every point's coordinates are NaN{some} (no point was measured)")
             pts = pts[~unmeasured]
     return check_cloud(pts, str(path), limit=limit)
+
+
+def _text(path: Path, suffix: str) -> bool:
+    """Whether a cloud file (checked) holds its points as text: its suffix says, or a PLY's or PCD's header."""
+    if suffix == ".npy":
+        return False
+    if suffix == ".ply":
+        return _ply_header(path)[0] == "ascii"
+    return suffix != ".pcd" or pcd_header(path).data == "ascii"
 
 
 def _read_open3d(path: Path, suffix: str, limit: int) -> np.ndarray:

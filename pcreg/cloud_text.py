@@ -21,7 +21,7 @@ from .errors import InputError
 from .text_files import refuse_utf16
 from .validation import check_point_count, max_pixels
 
-__all__ = ["UTF8_BOM", "check_text_cloud", "number_columns", "read_columns", "read_pts"]
+__all__ = ["UTF8_BOM", "check_last_line", "check_text_cloud", "number_columns", "read_columns", "read_pts"]
 
 
 def check_text_cloud(path: Path, suffix: str, limit: int) -> tuple[int, int]:
@@ -304,6 +304,61 @@ def _bad_line(path: Path, separator: bytes | None, width: int, start: int, numer
                                  f"{width}")
             raise InputError(f"{path}: line {number} ({text!r}): its {'xyz'[numeric.index(wrong)]}, "
                              f"{shown(fields[wrong], 20)!r}, is not a number{odd or _comma_hint(line)}")
+
+
+#: How much of a text cloud's end :func:`check_last_line` reads, and how many whole lines before its last it
+#: compares the last with (at least :data:`_CUT_LINES_MIN` of them).
+_TAIL_BYTES, _CUT_LINES, _CUT_LINES_MIN = 1 << 14, 32, 3
+#: A number's shape as a writer's format gives it: its sign, digits, point, digits and exponent.
+_SHAPE = re.compile(rb"[+-]?\d*(?:\.(\d*))?(?:[eE]([+-]?\d*))?")
+
+
+def check_last_line(path: Path) -> None:
+    """An :class:`InputError` for a text cloud cut inside its last number: a last line with no line end whose
+    last number is shorter than that column's on every line before it (``3.8`` where each is written
+    ``3.842e-01``, or with six digits after the point), as a file written with one format and then cut short
+    (an interrupted copy or download) ends. A line cut between two numbers is refused where its count of
+    numbers is checked; one cut inside a number has the right count, and a reader takes the rest of it for
+    the number. A last line that ends with a line end, or a column written in varying lengths (``%g``), says
+    nothing, and a binary file's end holds no such lines."""
+    with open(path, "rb") as fh:
+        start = max(0, fh.seek(0, os.SEEK_END) - _TAIL_BYTES)
+        fh.seek(start)
+        tail = fh.read()
+    if not tail or tail.endswith((b"\n", b"\r")):
+        return
+    lines = [line for line in tail.split(b"\n")[1 if start else 0:] if line.strip()]  # the first may start mid-line
+    if not lines:
+        return
+    last, before, formats = _last_number(lines[-1]), [], set()
+    for line in reversed(lines[-_CUT_LINES - 1:-1]):  # the lines of numbers just before it (not a header's)
+        word = _last_number(line)
+        shape = _SHAPE.fullmatch(word)
+        if shape is None or not any(c in b"0123456789" for c in word):
+            break
+        before.append(word)
+        formats.add(_digits(shape))
+    shape = _SHAPE.fullmatch(last)
+    if len(before) < _CUT_LINES_MIN or not last or shape is None or len(formats) > 1:
+        return  # too few lines to tell, no number (a line cut after a separator: its count is checked), a column of no one format
+    (after, exponent), (whole_after, whole_exponent) = _digits(shape), formats.pop()
+    if after < whole_after or exponent < whole_exponent:
+        raise InputError(f"{path}: its last line ends inside a number: {shown(last, 30)!r} is shorter than that column "
+                         f"on every line before it ({shown(before[0], 30)!r}) and no line end follows it, as a file cut "
+                         "short (an interrupted copy or download) ends; copy the file again (a last line that is "
+                         "whole is read once it ends with a line end)")
+
+
+def _last_number(line: bytes) -> bytes:
+    """The last of a line's fields, split at white space, commas and semicolons, its quotes taken off."""
+    words = re.split(rb"[\s,;]+", line.strip())
+    return words[-1].strip(b'"') if words else b""
+
+
+def _digits(shape: re.Match) -> tuple[int, int]:
+    """A number's digits after its point and in its exponent (:data:`_SHAPE`), each -1 where it has none."""
+    after, exponent = shape.group(1), shape.group(2)
+    return (-1 if after is None else len(after), -1 if exponent is None else len(exponent.lstrip(b"+-")))
 
 
 def shown(line: bytes, size: int = 40) -> str:

@@ -171,6 +171,14 @@ def test_labelmap_forms_datumaro_accepts():
     ("background:0,0,0::\r\nro\x85ad:1,2,3::\r\ncar:4,5,6::\r\n", "line 2: the class name 'ro\\x85ad' holds U+0085"),
     ("".join(f"c{i}:{i},{255 - i},1::\n" for i in range(256)), "257 classes (its background among them); a class "
      "table holds at most 256"),  # a background added: no line holds an id to name
+    # colours written without the ':' before them: read as Datumaro reads a table of names, the class named
+    # 'road 128 64 128' and coloured by the VOC colour map
+    ("road 128 64 128\ncar 64 0 128\n", "the line 'road 128 64 128' reads as a class named so, with no colour: a "
+     "labelmap.txt line is name:R,G,B:parts:actions ('road:128,64,128::')"),
+    ("road,128,64,128\nsky,70,130,180\n", "('road:128,64,128::')"),
+    # a file of one line that is no label map: its only name took black, the background's colour
+    ("hello world\n", "no line gives a colour, so its first class, 'hello world', took the VOC colour map's first, "
+     "black, the background's"),
 ])
 def test_bad_labelmaps(tmp_path, text, needle):
     p = tmp_path / "labelmap.txt"

@@ -325,3 +325,39 @@ def test_a_pcd_without_x_y_z_is_refused_saying_so_whatever_its_data(tmp_path, ki
     why = "PCL names the coordinates in lower case" if fields == "X Y Z" else "not a cloud of points"
     with pytest.raises(InputError, match=rf"image.pcd: PCD fields {fields} lack x, y or z: {why}"):
         load_cloud(path)
+
+
+def _fixed_clouds(pts) -> dict[str, bytes]:
+    """A cloud in each text layout, its numbers written in one fixed format (numpy's default ``%.18e``, six
+    digits after the point as CloudCompare and most exports write them)."""
+    rows6 = "".join(f"{x:.6f} {y:.6f} {z:.6f}\n" for x, y, z in pts)
+    n = len(pts)
+    return {"numpy.txt": "".join(f"{x:.18e} {y:.18e} {z:.18e}\n" for x, y, z in pts).encode(),
+            "export.csv": rows6.replace(" ", ",").encode(), "scan.xyz": rows6.encode(),
+            "scan.pts": f"{n}\n{rows6}".encode(),
+            "pcl.pcd": (f"VERSION .7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH {n}\nHEIGHT 1\n"
+                        f"VIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA ascii\n{rows6}").encode(),
+            "mesh.ply": (f"ply\nformat ascii 1.0\nelement vertex {n}\nproperty float x\nproperty float y\n"
+                         f"property float z\nend_header\n{rows6}").encode()}
+
+
+@pytest.mark.parametrize("name", ["numpy.txt", "export.csv", "scan.xyz", "scan.pts", "pcl.pcd", "mesh.ply"])
+def test_a_text_cloud_cut_inside_its_last_number_is_refused(tmp_path, pts, name):
+    """A copy cut short inside the last number (``0.4153`` of ``0.415384``) holds the right count of numbers:
+    it was read with that number. Whole without its last line end, it is read."""
+    data = _fixed_clouds(pts)[name]
+    path = tmp_path / name
+    for cut in (2, 4, 6):  # inside the last number (its digits, its point, its exponent)
+        path.write_bytes(data[:-cut])
+        with pytest.raises(InputError, match=rf"{name}: its last line ends inside a number: '[-0-9.e+]*' is shorter"):
+            load_cloud(path)
+    path.write_bytes(data[:-1])  # only the last line end missing
+    np.testing.assert_allclose(load_cloud(path), pts, atol=1e-6)
+
+
+def test_a_column_of_no_one_format_is_read_to_its_last_line(tmp_path, pts):
+    """Numbers written in varying lengths (Python's ``repr``, ``%g``) say nothing of a cut: such a file without a
+    last line end is read, as it was."""
+    text = "\n".join(f"{x} {y} {z}" for x, y, z in np.round(pts, 3))  # no line end after the last
+    (tmp_path / "joined.txt").write_text(text)
+    np.testing.assert_array_equal(load_cloud(tmp_path / "joined.txt"), np.round(pts, 3))

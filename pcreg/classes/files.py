@@ -119,6 +119,7 @@ def parse_labelmap(text: str, where: str) -> ClassTable:
         raise InputError(f"{where}: no class (a labelmap.txt lists name:R,G,B:: lines)")
     given = [c for _, c in entries if c is not None]
     if not given:  # Datumaro: no colours at all, the VOC colour map's in order
+        _no_colours_written(entries, where)
         entries = [(name, (int(r), int(g), int(b))) for (name, _), (r, g, b) in zip(entries, voc_colormap(len(entries)))]
     elif len(given) < len(entries):
         missing = next(name for name, c in entries if c is None)
@@ -139,13 +140,32 @@ def parse_labelmap(text: str, where: str) -> ClassTable:
                          f"{MAX_CLASSES}, ids 0..{MAX_CLASSES - 1} of 8-bit labels")
     known = [e for i, e in enumerate(entries) if i != background]
     if len(known) < 2:  # a task of one label: its background is where nobody drew, no class of its own
+        unsaid = "" if given else (f"; no line gives a colour, so its first class, {entries[background][0]!r}, took "
+                                   "the VOC colour map's first, black, the background's, as Datumaro reads a table of "
+                                   "names (a labelmap.txt lists name:R,G,B:: lines)")
         raise InputError(f"{where}: {len(known)} class(es) besides {entries[background][0]!r} (the pixels nobody "
                          "labelled, not a class); pcreg labels two or more: add a label for the rest (e.g. 'other') "
-                         "and draw it on the key frames")
+                         f"and draw it on the key frames{unsaid}")
     classes = [LabelClass(k, name, colour) for k, (name, colour) in enumerate(known)]  # type: ignore[arg-type]
     name, colour = entries[background]
     classes.append(LabelClass(len(known), name, colour))  # type: ignore[arg-type]
     return ClassTable(tuple(classes), len(known), where)
+
+
+#: A class name that ends in three numbers of 0..255 (``road 128 64 128``, ``road,128,64,128``): a colour written
+#: without the labelmap's ``:`` before it.
+_COLOUR_IN_NAME = re.compile(r"(.*?\S)[\s,;]+(\d{1,3})[\s,;]+(\d{1,3})[\s,;]+(\d{1,3})")
+
+
+def _no_colours_written(entries: list, where: str) -> None:
+    """An :class:`InputError` for a table of names (no line holds a ``:``) one of which ends in a colour written
+    without its ``:`` (:data:`_COLOUR_IN_NAME`): read as Datumaro reads it, the class would be named with its
+    colour and coloured by the VOC colour map."""
+    for name, _ in entries:
+        m = _COLOUR_IN_NAME.fullmatch(name)
+        if m is not None and all(int(v) <= 255 for v in m.groups()[1:]):
+            raise InputError(f"{where}: the line {name!r} reads as a class named so, with no colour: a labelmap.txt "
+                             f"line is name:R,G,B:parts:actions ('{m.group(1)}:{','.join(m.groups()[1:])}::')")
 
 
 def _read_text(path: Path, what: str) -> str:

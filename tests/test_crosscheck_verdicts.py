@@ -131,6 +131,26 @@ def test_small_gicp_reaches_the_fixed_point_far_from_the_origin(shared_data, off
     assert row["agrees"] is True, (row["matrix_relative_disagreement"], row["rotation_disagreement_deg"])
 
 
+@pytest.mark.parametrize("unit", [1.0, 1e-9, 1e-12, 1e6])
+def test_small_gicp_agrees_in_units_a_trillion_times_smaller(unit):
+    """small_gicp stops when a step's translation is under an absolute criterion, and solves with absolute damping:
+    with the criterion 1e-12 of the target's extent floored at 1, its rows on clouds 1e-12 across stopped at
+    iteration 0, 2.9 degrees from the reference, and read "no" (with the floor taken off, 4 degrees off at
+    iteration 4: the rotation's part of its system is the extent squared). The clouds are given to it in units of
+    the target's extent."""
+    pytest.importorskip("small_gicp")
+    from pcreg import ICPOptions
+    from pcreg.implementations.suite import builtin_cases
+
+    c = next(c for c in builtin_cases()[0] if c.name == "3d-random")
+    kinds = ["small_gicp", "small_gicp-plane", "small_gicp-gicp"]
+    r = crosscheck_implementations(c.source * unit, c.target * unit, implementations=kinds,
+                                   options=ICPOptions(max_correspondence_distance=c.max_correspondence_distance * unit))
+    for kind in kinds:
+        row = r.rows[kind]
+        assert row["agrees"] is True and row["iterations"] > 1, (kind, row["iterations"], row["rotation_disagreement_deg"])
+
+
 @pytest.mark.parametrize("unit, offset", [(1.0, 0.0), (1e6, 0.0), (1.0, 1e6), (0.01, 1e6), (0.001, 1e5)])
 def test_kiss_icp_converges_in_any_unit_and_far_from_the_origin(unit, offset):
     """KISS-ICP's stopping rule is a step's norm (translation and rotation vector) under a criterion: an absolute

@@ -65,8 +65,10 @@ def load_cloud(path: str | os.PathLike, *, max_points: int | None = None) -> np.
         if suffix == ".pcd":  # PCL's removeNaNFromPointCloud leaves out a point with any coordinate NaN
             unmeasured = np.isnan(pts).any(axis=1)
             if unmeasured.all():
-                some = "" if np.isnan(pts).all() else " (some of them, in some points)"
-                raise InputError(f"{path}: every point's coordinates are NaN{some} (no point was measured)")
+                if np.isnan(pts).all():
+                    raise InputError(f"{path}: every point's coordinates are NaN (no point was measured)")
+                raise InputError(f"{path}: every point has a coordinate that is NaN (no point was measured in full; "
+                                 "PCL leaves such points out, as pcreg does)")
             pts = pts[~unmeasured]
     return check_cloud(pts, str(path), limit=limit)
 

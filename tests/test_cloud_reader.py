@@ -236,7 +236,7 @@ def test_a_pcd_point_with_some_coordinates_nan_is_left_out_as_pcl_leaves_it(tmp_
     grid = np.ones((1, 3, 3), np.float32)
     grid[0, :, 1] = np.nan  # every point with a NaN y
     _organised_pcd(path, grid, kind)
-    with pytest.raises(InputError, match="holes.pcd: every point's coordinates are NaN \\(some of them"):
+    with pytest.raises(InputError, match="holes.pcd: every point has a coordinate that is NaN \\(no point was measured in full"):
         load_cloud(path)
     grid[0, 0, 1] = np.inf  # inf is not NaN: a damaged point, as before
     _organised_pcd(path, grid, kind)
@@ -275,6 +275,20 @@ def test_crosscheck_of_files_of_an_unknown_type_says_so(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith(f"pcreg: error: {tmp_path / 'cloud.00000.vtk'}: unknown file type '.vtk' (an image: .png")
     assert ".txt, .csv)" in err
+
+
+def test_crosscheck_of_a_cloud_without_its_suffix_says_how_clouds_are_read(tmp_path, capsys):
+    """A .npy cloud saved without its suffix (``np.save`` adds it, a copy or download may drop it) is read as an
+    image, and was refused as "not an image pcreg reads" alone: the refusal says that a cloud is read by its suffix."""
+    from pcreg.cli import main
+
+    np.save(tmp_path / "target.npy", np.random.default_rng(0).random((50, 3)))
+    (tmp_path / "target.npy").rename(tmp_path / "target")
+    np.save(tmp_path / "source.npy", np.random.default_rng(1).random((50, 3)))
+    assert main(["crosscheck", str(tmp_path / "target"), str(tmp_path / "source.npy")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"pcreg: error: {tmp_path / 'target'}: not an image pcreg reads")
+    assert "(a file without a suffix is read as an image; a point cloud is read by its suffix: .ply, .pcd" in err
 
 
 @pytest.mark.parametrize("names", ["x,x,y,z", "X,Y,Z,x,y,z", "x,y,z,Points:0,z"])

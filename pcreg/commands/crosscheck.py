@@ -302,6 +302,10 @@ def format_table(out: dict) -> str:
         wide = _mixture_width(r, out["settings"]["max_correspondence_distance"])
         if wide:
             lines.append(f"{'':24s} {wide}")
+        replay = (r.get("info") or {}).get("trace_seconds") or 0.0
+        if replay > max(1.0, r["seconds"]):  # time the command took that the row's s does not show
+            lines.append(f"{'':24s} its iterations, replayed one call a step to count and trace them, took a further "
+                         f"{replay:.1f} s (its s is its own call's)")
         said = (r.get("info") or {}).get("said")
         if said:  # what the library printed or warned, kept off the terminal: its row says it
             lines.append(f"{'':24s} its library said: {said[0]}" + (f" (and {len(said) - 1} more)" if len(said) > 1 else ""))

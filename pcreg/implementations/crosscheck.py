@@ -151,8 +151,14 @@ def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig
             suffix = Path(x).suffix.lower()
             if suffix in CLOUD_SUFFIXES:
                 return "clouds", load_cloud(x)
-            if suffix in IMAGE_SUFFIXES or not suffix:  # its transparent pixels left out, as pcreg register does
+            if suffix in IMAGE_SUFFIXES:  # its transparent pixels left out, as pcreg register does
                 return "images", load_image_and_mask(x)
+            if not suffix:
+                try:
+                    return "images", load_image_and_mask(x)
+                except InputError as error:  # a cloud is read by its suffix
+                    raise InputError(f"{error} (a file without a suffix is read as an image; a point cloud is read "
+                                     f"by its suffix: {', '.join(CLOUD_SUFFIXES)})") from None
             raise InputError(f"{x}: unknown file type {suffix!r} (an image or a point cloud)")
         if type(x).__module__.startswith("open3d") and hasattr(x, "points"):  # as pcreg.icp says it
             raise InputError(f"{name}: an Open3D {type(x).__name__}, not an array; pass np.asarray(cloud.points)")

@@ -247,9 +247,10 @@ def test_a_run_following_an_object_predicts_its_iou_and_scores_it_against_the_tr
 
 @pytest.mark.data
 def test_the_predicted_error_does_not_understate_an_object_followed_worse_than_the_key_frames_flow(shared_data):
-    """breakdance's limbs move faster than DIS follows (J 0.55): over its first 30 frames the follower's labels are
-    4.5% wrong. Its confidence, fitted on the five shared sequences (easy ones: val's 15 others made 7.7% error where
-    it predicted 3.4%), predicted 2.6% here; fitted on DAVIS 2016's train set, 4.9%."""
+    """breakdance's limbs move faster than DIS follows (J 0.59): over its first 30 frames the follower's labels are
+    3.9% wrong (4.5% before the chain was trusted by its residual). Its confidence, fitted on the five shared sequences
+    (easy ones: val's 15 others made 7.7% error where it predicted 3.4%), predicted 2.6% here; fitted on DAVIS 2016's
+    train set, 4.9% (5.2% with the chain's trust, refitted)."""
     from pcreg.datasets.davis import load_sequence
 
     root = shared_data / "davis" / "breakdance"
@@ -262,5 +263,5 @@ def test_the_predicted_error_does_not_understate_an_object_followed_worse_than_t
         labels = follower.step(f.image)
         predicted.append(follower.last.predicted_error)
         measured.append(100.0 * float((labels != f.labels).mean()))
-    assert 4.0 < np.mean(measured) < 5.0  # measured 4.48
-    assert np.mean(predicted) >= 0.9 * np.mean(measured), (np.mean(predicted), np.mean(measured))  # 4.87 (2.64 before)
+    assert 3.5 < np.mean(measured) < 4.5  # measured 3.94 (4.48 before the chain was trusted by its residual)
+    assert np.mean(predicted) >= 0.9 * np.mean(measured), (np.mean(predicted), np.mean(measured))  # 5.19 (4.87 before the chain's trust, 2.64 before that)

@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 import pytest
 
-from pcreg.classes import CAMVID11, ClassTable, LabelClass, labelmap_text
+from pcreg.classes import CAMVID11, ClassTable, LabelClass, labelmap_text, table_json
 from pcreg.errors import InputError
 from pcreg.cli import main
 from pcreg.export import read_labels
@@ -390,6 +390,11 @@ def test_the_export_of_a_run_whose_unknown_is_not_black_writes_it_black(clip, tm
         run = read_labels(out / f"{Path(stems[t]).stem}.png", grey)
         assert ((labels == run) | (labels == table.unknown)).all(), t
     assert sum(int((k == table.unknown).sum()) for k in keys.values()) > 0
+    # under the run's own table (--classes): its ids and colours, the masks read in the colours the export wrote
+    (tmp_path / "grey.json").write_text(table_json(grey))
+    mine, again = read_cvat_keys(archive, source, ids[stems[0]].shape, str(tmp_path / "grey.json"))
+    assert mine == grey and set(again) == set(keys)
+    assert all((again[t] == keys[t]).all() for t in keys)
 
 
 def test_an_archive_of_a_table_whose_unknown_is_not_black_reads_back_in_datumaro(clip, tmp_path):
@@ -449,6 +454,14 @@ def test_a_known_class_in_black_is_exported_in_a_colour_of_its_own(clip, tmp_pat
     rc, err = _run(["export", out], capsys)
     assert rc == 0 and any("the class background is black in the run's table, CVAT's background, and (128, 128, 0) in "
                            "the archive: its pixels go to the task's label background" in e for e in err), err
+    # read back under the run's own table: the archive's colours are that table's as the export writes it (refused
+    # before: "class 'background' (0, 0, 0) is in --classes ... only", where only its colour had changed)
+    back = tmp_path / "back"
+    rc, err = _run(["run", frames, "--labels", out / "export-cvat-mask.zip", "--out", back, "--model", "flow",
+                    "--scale", "0.5", "--classes", tmp_path / "voc.json"], capsys)
+    assert rc == 0, err
+    first = f"{Path(list(ids)[0]).stem}.png"
+    np.testing.assert_array_equal(read_labels(back / first, voc), read_labels(out / first, voc))
 
 
 def test_tables_of_every_voc_colour_export(tmp_path):

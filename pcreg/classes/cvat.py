@@ -299,39 +299,45 @@ class CvatExport(contextlib.AbstractContextManager):
         self.close()
 
 
-def _table(export: CvatExport, classes: str | None) -> tuple[ClassTable, list[int]]:
-    """The export's table (``labelmap.txt``; with ``--classes`` too, they must agree) and each labelmap
-    line's class id, in the file's order (for one-channel masks)."""
+def _table(export: CvatExport, classes: str | None) -> tuple[ClassTable, ClassTable, list[int]]:
+    """The export's table (``labelmap.txt``; with ``--classes`` too, they must agree), the same table in the
+    colours its masks hold (``--classes``'s as pcreg's export writes it, where that recoloured it:
+    :func:`_named_table`) and each labelmap line's class id, in the file's order (for one-channel masks)."""
     from .files import MAX_TABLE_BYTES, class_table, labelmap_lines, parse_labelmap
     if not export.has(LABELMAP_FILE):
         if classes is None:
             raise InputError(f"{export.where(LABELMAP_FILE)}: missing (the export's class table; or name one with "
                              f"--classes){export.inner_archive()}")
         table = class_table(classes)
-        return table, [table.unknown, *table.known_ids]
+        return table, table, [table.unknown, *table.known_ids]
     try:
         text = export.read(LABELMAP_FILE, max_bytes=MAX_TABLE_BYTES, what="a class table").decode("utf-8-sig")
     except UnicodeDecodeError:
         raise InputError(f"{export.where(LABELMAP_FILE)}: not UTF-8 text") from None
     read = parse_labelmap(text, export.where(LABELMAP_FILE))
-    table = read if classes is None else _named_table(class_table(classes), f"--classes {classes}", read,
-                                                      export.where(LABELMAP_FILE))
+    table = read if classes is None else class_table(classes)
+    coloured = read if classes is None else _named_table(table, f"--classes {classes}", read, export.where(LABELMAP_FILE))
     colour_of = {c.name: c.colour for c in read.classes}
-    id_of = {c.colour: c.id for c in table.classes}  # a colour is one class's in both tables
+    id_of = {c.colour: c.id for c in coloured.classes}  # a colour is one class's in both tables
     order = [id_of[colour_of[ln.split(":")[0].strip()]] for ln in labelmap_lines(text)
              if ln.strip() and not ln.strip().startswith("#")]
-    return table, order
+    return table, coloured, order
 
 
 def _named_table(given: ClassTable, given_where: str, read: ClassTable, where: str) -> ClassTable:
-    """``given`` (``--classes``) when the export's label map ``read`` lists the same classes by name and colour
-    and the same colour for the unknown, whatever their order: a label map holds no ids, so the ids are
+    """``given`` (``--classes``) in the colours of the export's label map ``read`` when that lists the same classes
+    by name and colour and the same colour for the unknown, whatever their order, or the colours pcreg's export
+    writes ``given`` in (:func:`pcreg.export.cvat_table`: its unknown black, a black known class in a colour of its
+    own), so that a run's own export reads back under its own table: a label map holds no ids, so the ids are
     ``given``'s (a table whose unknown is 0, as ADE20K's, or whose ids have gaps, reads back as itself).
     Else an :class:`InputError` naming ``where`` and a class that one of them lacks."""
-    mine = {(c.name, c.colour) for c in given.known}
+    from ..export import cvat_table
+
     theirs = {(c.name, c.colour) for c in read.known}
-    if mine == theirs and given.unknown_class.colour == read.unknown_class.colour:
-        return given
+    for coloured in (given, cvat_table(given)):
+        if {(c.name, c.colour) for c in coloured.known} == theirs and coloured.unknown_class.colour == read.unknown_class.colour:
+            return coloured
+    mine = {(c.name, c.colour) for c in given.known}
     if mine == theirs:
         how = f"the unknown is {given.unknown_class.colour} in one and {read.unknown_class.colour} in the other"
     else:
@@ -533,7 +539,7 @@ def read_cvat_keys(path: Path, frames, shape: tuple[int, int], classes: str | No
         raise InputError(f"--mapping {mapping}: the masks of a CVAT export ({path}) are read through its labelmap.txt")
     lim = max_pixels(limit)
     with CvatExport(path, max_bytes=max_file_bytes(lim), max_pixels=lim) as export:
-        table, order = _table(export, classes)
+        table, coloured, order = _table(export, classes)
         masks = export.names(CLASS_DIR)
         if not masks:
             raise InputError(f"{export.where(CLASS_DIR)}: no class mask (a CVAT 'Segmentation mask 1.1' export holds "
@@ -552,7 +558,7 @@ def read_cvat_keys(path: Path, frames, shape: tuple[int, int], classes: str | No
             w, h = check_image_bytes(data, export.where(m), limit=lim)
             if (h, w) != shape:  # said from its header, before its pixels are inflated, drawn on or not
                 raise InputError(f"{export.where(m)}: the mask is {w}x{h}, the frames {shape[1]}x{shape[0]}")
-            lab = _decode_mask(data, export.where(m), table, order, lim)
+            lab = _decode_mask(data, export.where(m), coloured, order, lim)
             if (lab == table.unknown).all():
                 continue  # a frame nobody drew on
             if t is None and left_out is not None and outside(PurePosixPath(m).stem):

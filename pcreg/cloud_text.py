@@ -315,8 +315,9 @@ _SHAPE = re.compile(rb"[+-]?\d*(?:\.(\d*))?(?:[eE]([+-]?\d*))?")
 
 def check_last_line(path: Path) -> None:
     """An :class:`InputError` for a text cloud cut inside its last number: a last line with no line end whose
-    last number is shorter than that column's on every line before it (``3.8`` where each is written
-    ``3.842e-01``, or with six digits after the point), as a file written with one format and then cut short
+    last number is shorter than that column's on every line before it of as many fields (``3.8`` where each is
+    written ``3.842e-01``, or with six digits after the point, trailing zeros kept), as a file written with one
+    format and then cut short
     (an interrupted copy or download) ends. A line cut between two numbers is refused where its count of
     numbers is checked; one cut inside a number has the right count, and a reader takes the rest of it for
     the number. A last line that ends with a line end, or a column written in varying lengths (``%g``), says
@@ -330,28 +331,36 @@ def check_last_line(path: Path) -> None:
     lines = [line for line in tail.split(b"\n")[1 if start else 0:] if line.strip()]  # the first may start mid-line
     if not lines:
         return
-    last, before, formats = _last_number(lines[-1]), [], set()
-    for line in reversed(lines[-_CUT_LINES - 1:-1]):  # the lines of numbers just before it (not a header's)
-        word = _last_number(line)
+    fields = len(_FIELDS.split(lines[-1].strip()))
+    last, before, formats, zeros = _last_number(lines[-1]), [], set(), False
+    for line in reversed(lines[-_CUT_LINES - 1:-1]):  # the lines of numbers just before it (not a header's, nor
+        word = _last_number(line)  # another element's, as a PLY's last face after its vertices)
         shape = _SHAPE.fullmatch(word)
-        if shape is None or not any(c in b"0123456789" for c in word):
+        if shape is None or not any(c in b"0123456789" for c in word) or len(_FIELDS.split(line.strip())) != fields:
             break
         before.append(word)
         formats.add(_digits(shape))
+        zeros = zeros or (shape.group(1) or b"").endswith(b"0")
     shape = _SHAPE.fullmatch(last)
     if len(before) < _CUT_LINES_MIN or not last or shape is None or len(formats) > 1:
         return  # too few lines to tell, no number (a line cut after a separator: its count is checked), a column of no one format
     (after, exponent), (whole_after, whole_exponent) = _digits(shape), formats.pop()
-    if after < whole_after or exponent < whole_exponent:
+    # fewer digits after the point tell a cut only where the writer keeps trailing zeros (one of those before ends
+    # in 0): a column of %g or of rounded numbers can hold one count of them by chance, and drop a last 0
+    if (after < whole_after and zeros) or exponent < whole_exponent:
         raise InputError(f"{path}: its last line ends inside a number: {shown(last, 30)!r} is shorter than that column "
                          f"on every line before it ({shown(before[0], 30)!r}) and no line end follows it, as a file cut "
                          "short (an interrupted copy or download) ends; copy the file again (a last line that is "
                          "whole is read once it ends with a line end)")
 
 
+#: What separates the fields of a text cloud's line, as :func:`check_last_line` splits them.
+_FIELDS = re.compile(rb"[\s,;]+")
+
+
 def _last_number(line: bytes) -> bytes:
-    """The last of a line's fields, split at white space, commas and semicolons, its quotes taken off."""
-    words = re.split(rb"[\s,;]+", line.strip())
+    """The last of a line's fields (:data:`_FIELDS`), its quotes taken off."""
+    words = _FIELDS.split(line.strip())
     return words[-1].strip(b'"') if words else b""
 
 

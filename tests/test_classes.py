@@ -100,7 +100,8 @@ def test_a_label_mapping_takes_whole_ids_each_once():
     # knows, a control character, half of a surrogate pair
     *[(((0, f"a{ch}b", (1, 2, 3)), (1, "b", (4, 5, 6)), (2, "c", (0, 0, 0))), "a line break or a control")
       for ch in ("\n", "\r", "\x0b", "\x0c", "\x1c", "\x85", "\u2028", "\u2029", "\x00", "\t", "\ud800",
-                 "\x7f", "\x9b")],  # DEL, and C1's CSI: a terminal showing the name may act on it ("\x9b2J" clears it)
+                 "\x7f", "\x9b",  # DEL, and C1's CSI: a terminal showing the name may act on it ("\x9b2J" clears it)
+                 "\u202e", "\u2066", "\u200f")],  # bidirectional controls: a summary line shown after them is turned
     # a name no reader sees: a zero-width space, Hangul's filler, a combining accent alone, a blank Braille pattern
     *[(((0, name, (1, 2, 3)), (1, "b", (4, 5, 6)), (2, "c", (0, 0, 0))), "has no name")
       for name in ("\u200b", "\u3164", "\u0301", "\u2800", "\u200b\u3164")],
@@ -441,6 +442,24 @@ def test_the_hint_for_values_beyond_the_table_follows_what_they_look_like():
     assert "--mapping davis" in mask_hint(np.array([[0, 255]], np.uint8))
     assert "--classes camvid11" in mask_hint(np.array([[0, 3, 11]], np.uint8))
     assert mask_hint(np.array([[0, 1, 2]], np.uint8)) == ""
+    # under a table of two known classes of its own, a DAVIS mask's 255 had no word of what the file is; under the
+    # default table the same hint, once
+    from pcreg.classes.keys import decode_key_labels
+
+    mine = ClassTable((LabelClass(0, "bg", (1, 2, 3)), LabelClass(1, "goat", (200, 0, 0)), LabelClass(2, "void", (0, 0, 0))),
+                      2, "mine.json")
+    png = cv2.imencode(".png", np.array([[0, 255], [255, 0]], np.uint8))[1].tobytes()
+    for table, named in ((mine, "0 bg, 1 goat, 2 void"), (LAGR, "0 ground, 1 obstacle, 2 unknown")):
+        with pytest.raises(InputError) as exc:
+            decode_key_labels(png, "key.png", table)
+        said = str(exc.value)
+        assert said.startswith(f"key.png: label value 255 is not a class id ({named}); it is a 0/255 object mask (DAVIS): "
+                               "pcreg run's --mapping davis reads it"), said
+        assert said.count("0/255 object mask") == 1, said
+    # 8-bit ids scaled to 16 bits (k x 257), as some converters save a label PNG: said, as a dark frame is
+    with pytest.raises(InputError, match=r"label value 2827 is not a class id .*; every value is a multiple of 257 "
+                                         r"\(2827 = 11 x 257\): 8-bit class ids scaled to 16 bits"):
+        CAMVID11.check_labels(np.array([[0, 257, 2827]], np.uint16), "key.png")
 
 
 def _damaged_png(tmp_path, how: str) -> Path:

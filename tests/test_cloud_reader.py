@@ -289,6 +289,8 @@ def test_crosscheck_of_a_cloud_without_its_suffix_says_how_clouds_are_read(tmp_p
     err = capsys.readouterr().err
     assert err.startswith(f"pcreg: error: {tmp_path / 'target'}: not an image pcreg reads")
     assert "(a file without a suffix is read as an image; a point cloud is read by its suffix: .ply, .pcd" in err
+    assert main(["crosscheck", str(tmp_path / "target"), str(tmp_path / "target")]) == 2  # two such: read as images
+    assert "(a file without a suffix is read as an image; a point cloud is read by its suffix" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("names", ["x,x,y,z", "X,Y,Z,x,y,z", "x,y,z,Points:0,z"])
@@ -375,3 +377,19 @@ def test_a_column_of_no_one_format_is_read_to_its_last_line(tmp_path, pts):
     text = "\n".join(f"{x} {y} {z}" for x, y, z in np.round(pts, 3))  # no line end after the last
     (tmp_path / "joined.txt").write_text(text)
     np.testing.assert_array_equal(load_cloud(tmp_path / "joined.txt"), np.round(pts, 3))
+
+
+def test_a_last_line_of_another_element_or_a_rounded_number_is_not_taken_for_a_cut(tmp_path, pts):
+    """A PLY's one face after its vertices (``3 0 1 2``, no line end) was compared with the vertices' last column and
+    refused as cut; a column whose numbers hold three digits after the point by chance (rounded, no trailing 0 kept:
+    ``%g``) ends whole in ``0.25``."""
+    rows = "".join(f"{x:.6f} {y:.6f} {z:.6f}\n" for x, y, z in pts)
+    head = (f"ply\nformat ascii 1.0\nelement vertex {len(pts)}\nproperty float x\nproperty float y\nproperty float z\n"
+            "element face 1\nproperty list uchar int vertex_indices\nend_header\n")
+    (tmp_path / "mesh.ply").write_text(head + rows + "3 0 1 2")
+    assert load_cloud(tmp_path / "mesh.ply").shape == (len(pts), 3)
+    rounded = [f"{v:.3f}" for v in np.linspace(0.111, 0.999, 3 * 40)]  # three digits, none ending in 0
+    rounded = [r if not r.endswith("0") else r[:-1] + "1" for r in rounded]
+    text = "".join(f"{a},{b},{c}\n" for a, b, c in zip(*[iter(rounded)] * 3)) + "0.5,0.5,0.25"
+    (tmp_path / "rounded.csv").write_text(text)
+    assert load_cloud(tmp_path / "rounded.csv").shape == (41, 3)

@@ -368,7 +368,7 @@ def decode_key_labels(data: bytes, name: str, table: ClassTable, mapping: str = 
                       limit: int | None = None) -> np.ndarray:
     """(H, W) uint8 class ids of ``table`` of an encoded label image ``name`` coded as ``mapping`` says
     (the module's docstring); one line naming ``name`` for a value or colour that is no class."""
-    from .mappings import mapping_lut, mask_hint
+    from .mappings import MASK_HINT, mapping_lut, mask_hint
 
     if mapping == "davis":
         return _one_object(data, name, limit=limit)
@@ -388,7 +388,8 @@ def decode_key_labels(data: bytes, name: str, table: ClassTable, mapping: str = 
                 hint = f"; {smoothed.hint}"
             except InputError:
                 hint = ""
-        if hint and table.agrees(DEFAULT_TABLE):
+        mask = hint.startswith(MASK_HINT) and table.n_known == 2  # a DAVIS mask under a two-class table of one's own
+        if hint and (table.agrees(DEFAULT_TABLE) or mask):
             raise InputError(f"{exc}{hint}") from None
         raise
 

@@ -99,13 +99,17 @@ def object_labels(values: np.ndarray, obj: int | None = None, void: int | None =
     return labels
 
 
+#: How :func:`mask_hint` begins for a 0/255 object mask.
+MASK_HINT = "; it is a 0/255 object mask (DAVIS)"
+
+
 def mask_hint(raw: np.ndarray) -> str:
     """What to say of label values that are not the default table's: when ``raw`` holds a 0/255 object mask,
     which mapping reads it; when it holds more classes, how to name their table."""
     values = np.unique(np.asarray(raw))
     if values.size <= 2 and set(values.tolist()) <= {0, 255}:
-        return ("; it is a 0/255 object mask (DAVIS): pcreg run's --mapping davis reads it (0 the background, 255 the "
-                "object), as --data davis: does")
+        return (f"{MASK_HINT}: pcreg run's --mapping davis reads it (0 the background, 255 the object), as --data "
+                "davis: does")
     if values.size and int(values.max()) > 11:  # beyond CamVid's ids: a soft-edged (resized, JPEG) object mask?
         return (f"; it holds values up to {int(values.max())}: an object mask, soft-edged or not, reads with pcreg "
                 "run's --mapping davis (0 the background, anything else the object), a table of that many classes "

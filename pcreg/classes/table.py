@@ -121,6 +121,11 @@ def colour_ids(rgb: np.ndarray, colours: Iterable[RGB], ids: Iterable[int]) -> t
     return values[pos], miss
 
 
+#: Characters a class name may not hold besides control characters: the label map's field separator, the line
+#: breaks ``str.splitlines`` splits on, and the bidirectional controls (U+061C, U+200E-F, U+202A-E, U+2066-9).
+_NOT_IN_NAMES = ":\u2028\u2029\u061c\u200e\u200f\u202a\u202b\u202c\u202d\u202e\u2066\u2067\u2068\u2069"
+
+
 def _check_class(c: LabelClass, where: str) -> LabelClass:
     ok_id = isinstance(c.id, (int, np.integer)) and not isinstance(c.id, bool) and 0 <= int(c.id) < MAX_CLASSES
     if not ok_id:
@@ -129,11 +134,12 @@ def _check_class(c: LabelClass, where: str) -> LabelClass:
         raise InputError(f"{where}: class {c.id}'s name {short_repr(c.name)} is not text")
     if _shows_nothing(c.name) or c.name != c.name.strip():
         raise InputError(f"{where}: class {c.id} has no name (or one with spaces around it, or none a reader sees)")
-    if c.name.startswith("#") or any(ch in ":\u2028\u2029" or unicodedata.category(ch) in ("Cc", "Cs") for ch in c.name):
+    if c.name.startswith("#") or any(ch in _NOT_IN_NAMES or unicodedata.category(ch) in ("Cc", "Cs") for ch in c.name):
         # a labelmap.txt line holds the name as it is: no field separator, line break (any that str.splitlines
         # splits on), control character (C0, DEL and C1: a terminal that shows the name may act on one, U+009B
-        # opening an escape sequence) or half of a surrogate pair (no UTF-8 for it), and no '#' first (a comment
-        # line to CVAT and Datumaro, which read a '#' anywhere else as part of the name)
+        # opening an escape sequence; a bidirectional control turns the rest of a line shown after it around) or
+        # half of a surrogate pair (no UTF-8 for it), and no '#' first (a comment line to CVAT and Datumaro, which
+        # read a '#' anywhere else as part of the name)
         raise InputError(f"{where}: class name {c.name!r} holds ':', a line break or a control character, "
                          "or starts with '#'")
     numbers = (int, float, np.integer, np.floating)
@@ -270,7 +276,10 @@ class ClassTable:
             raise InputError(f"{where}: labels must be (H, W), one class id a pixel, got shape {a.shape}")
         if a.size and (int(a.min()) < 0 or int(a.max()) > 255):
             bad = int(a.min()) if int(a.min()) < 0 else int(a.max())
-            raise InputError(f"{where}: label value {bad} is not a class id ({self.describe()})")
+            wide = 255 < bad <= 65535 and not (a % 257).any()  # 8-bit ids scaled to 16 bits (k x 257), as some converters write
+            raise InputError(f"{where}: label value {bad} is not a class id ({self.describe()})"
+                             + (f"; every value is a multiple of 257 ({bad} = {bad // 257} x 257): 8-bit class ids "
+                                "scaled to 16 bits; save the PNG with 8 bits a pixel" if wide else ""))
         a8 = a.astype(np.uint8, copy=False)
         present = np.flatnonzero(np.bincount(a8.ravel(), minlength=256))
         valid = self.valid()

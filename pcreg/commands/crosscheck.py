@@ -335,11 +335,25 @@ def _run_on(conv: dict | None) -> str:
             "are compared with")
 
 
+def _read_image(path: str):
+    """:func:`~pcreg.formats.read_image_file_and_damage` of ``path``, its refusal saying how clouds are read where
+    the file has no suffix."""
+    from ..errors import InputError
+    from ..formats import read_image_file_and_damage
+    from ..implementations.crosscheck import suffixless
+
+    try:
+        return read_image_file_and_damage(path)
+    except InputError as error:
+        if Path(path).suffix:
+            raise
+        raise suffixless(error) from None
+
+
 def _images(args) -> int:
     from ..implementations.crosscheck import CROSSCHECK_REGISTRATION, CrosscheckConfig, crosscheck_images
 
     from ..errors import InputError, RegistrationError
-    from ..formats import read_image_file_and_damage
     from ..registration.clouds import image_and_mask
     from ..registration.icp_options import RMSE_TOLERANCE
     from .register import _file_notes, _naming_its_file, _repeat_notes
@@ -360,7 +374,7 @@ def _images(args) -> int:
         callbacks = {b: rec.icp_callback(b) for b in ("reference", "open3d")}  # None each without a recording
         cb = (lambda it: callbacks[it.backend](it)) if callbacks["reference"] is not None else None
         # B registered onto A, read as pcreg register reads them: transparent pixels left out
-        read = [read_image_file_and_damage(path) for path in (args.a, args.b)]
+        read = [_read_image(path) for path in (args.a, args.b)]
         stored = [image for image, _ in read]
         (ref, ref_mask), (mov, mov_mask) = (image_and_mask(img, path) for img, path in zip(stored, (args.a, args.b)))
         try:

@@ -67,7 +67,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "labels come back at full size. 0.5 runs the step 1.8x faster, a little less accurate")
     p.add_argument("--follow", choices=("scene", "object"), default="scene",
                    help="scene (default: the camera moves through a scene) or object: follow one moving, deforming "
-                        "object from its key-frame mask (DAVIS: J 0.752 against 0.552, F 0.673 against 0.482; worse than "
+                        "object from its key-frame mask (DAVIS: J 0.756 against 0.552, F 0.693 against 0.482; worse than "
                         "plain on 3 of 8 CamVid clips, so not the default); its own motion: one key frame, the default options")
     p.add_argument("--confidence", action="store_true",
                    help="also write OUT/confidence/NAME.png: 255 x the probability that each label is right")

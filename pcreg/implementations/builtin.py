@@ -163,8 +163,8 @@ class SmallGicp(Implementation):
 
     @staticmethod
     def _scale(pinned):
-        """The target's extent about its centroid (1 for a target of one point): the translation's criterion is
-        relative to it, and clouds less than a unit across are given to small_gicp in it, since its damping is
+        """The target's extent about its centroid (its largest coordinate from it; 1 for a target of one point): the
+        translation's criterion is relative to it, and clouds of an extent under 1 are given to small_gicp in it, since its damping is
         absolute (the criterion floored at 1, clouds 1e-12 across stopped at iteration 0, 2.9 degrees off; with it
         not floored, 4 degrees off at iteration 4: the rotation's part of its system is the extent squared)."""
         extent = float(np.abs(pinned.target - pinned.target.mean(axis=0)).max())
@@ -194,7 +194,8 @@ class SmallGicp(Implementation):
                              translation_epsilon=s["translation_epsilon"] / k)
         seconds = time.perf_counter() - start
         m = _in_unit(np.asarray(r.T_target_source), k)
-        info = {"num_inliers": int(r.num_inliers), "error": float(r.error)}
+        # its sum of squared distances in the clouds' units (GICP's, through covariances scaled alike, has none)
+        info = {"num_inliers": int(r.num_inliers), "error": float(r.error) * (1.0 if self.kind == "GICP" else k * k)}
         if pinned.dim == 2:
             info["out_of_plane"] = out_of_plane(m)
             m = project(m)

@@ -129,6 +129,12 @@ def crosscheck_images(reference_image: np.ndarray, moving_image: np.ndarray, *,
                "inlier_ratios": [a.inlier_ratio, b.inlier_ratio]}, refused=refused)
 
 
+
+def suffixless(error: InputError) -> InputError:
+    """The refusal of a file without a suffix read as an image (``error``): a point cloud is read by its suffix."""
+    return InputError(f"{error} (a file without a suffix is read as an image; a point cloud is read by its suffix: "
+                      f"{', '.join(CLOUD_SUFFIXES)})")
+
 def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig(), callback=None,
                implementations: Sequence[str] | None = None, **cloud_options):
     """Cross-check the backends: register ``moving`` onto ``reference`` (two images or two point clouds,
@@ -156,9 +162,8 @@ def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig
             if not suffix:
                 try:
                     return "images", load_image_and_mask(x)
-                except InputError as error:  # a cloud is read by its suffix
-                    raise InputError(f"{error} (a file without a suffix is read as an image; a point cloud is read "
-                                     f"by its suffix: {', '.join(CLOUD_SUFFIXES)})") from None
+                except InputError as error:
+                    raise suffixless(error) from None
             raise InputError(f"{x}: unknown file type {suffix!r} (an image or a point cloud)")
         if type(x).__module__.startswith("open3d") and hasattr(x, "points"):  # as pcreg.icp says it
             raise InputError(f"{name}: an Open3D {type(x).__name__}, not an array; pass np.asarray(cloud.points)")

@@ -35,7 +35,7 @@ class PropagatorConfig:
     follow : ``"scene"`` (default: the options above) or ``"object"``: one moving object followed from its
         key-frame mask (:class:`~pcreg.pipeline.follow.ObjectFollower`, its own motion and working size, so
         the options above keep their defaults). On the five shared DAVIS sequences it takes J from 0.552 to
-        0.752; on CamVid's scenes it is worse than plain naive Bayes on three clips of eight.
+        0.756; on CamVid's scenes it is worse than plain naive Bayes on three clips of eight.
     """
 
     model: str = "dense"

@@ -57,13 +57,12 @@ labels at the working size, the frame's grey levels and its colour histogram are
 with every frame, so a stopped run resumes exactly. The
 step's two flows are independent: one runs on pcreg's helper thread (``pcreg._threads``).
 
-Measured (docs/results.md, "Following one moving object"): on the five shared DAVIS 2016 sequences, the two
-weights, the residual's width, the carry's blur and the reach chosen leaving one sequence out (on J + F), J 0.751
-and F 0.670 against the scene stream's 0.552 and 0.482; with the chain trusted by its residual (added since: DAVIS
-2016's train set J 0.624 -> 0.666), J 0.756 / F 0.693 on the five and 0.494 / 0.485 on val's 15 others (0.490 /
-0.451 before). Every term is needed (without the chain J 0.507, the colours 0.632, the key carry 0.629, the gate
-0.583, measured before the chain's trust). On CamVid's clips (scenes, not objects) it is worse than plain naive
-Bayes on three of eight: a mode of its own, not the default.
+Measured (docs/results.md, "Following one moving object"): on the five shared DAVIS 2016 sequences, the weights,
+the residual's width, the blur and the reach chosen leaving one out (on J + F), J 0.751 / F 0.670 against the scene
+stream's 0.552 / 0.482; with the chain's trust (since; DAVIS 2016 train J 0.624 -> 0.666), 0.756 / 0.693 on the five,
+0.494 / 0.485 on val's 15 others (0.490 / 0.451 before). Every term is needed (without the chain J 0.507, the colours
+0.632, the key carry 0.629, the gate 0.583, before the chain's trust). On CamVid's clips (scenes) it is worse than
+plain naive Bayes on three of eight: a mode of its own, not the default.
 """
 
 from __future__ import annotations
@@ -95,20 +94,19 @@ SCALE = 0.5
 FLOW_PRESET = "medium"
 #: Every log-odds term is clipped to +-CLIP.
 CLIP = 4.0
-# The constants below were chosen on the five shared DAVIS sequences leaving one out (a grid of carry
-# {0.5, 0.7} x key {1, 1.5} x residual {40, 60} x blur {1, 2, 3, 4} x NEAR {none, 8, 16, 32, 64}, chosen on
-# the other four's mean J + F): four folds of five chose these, breakdance's chose blur 3 (docs/results.md).
+# Chosen on the five shared DAVIS sequences leaving one out, on the other four's mean J + F (carry {0.5, 0.7} x key {1, 1.5}
+# x residual {40, 60} x blur {1, 2, 3, 4} x NEAR {none, 8, 16, 32, 64}): four folds chose these, breakdance's blur 3.
 #: Weight of the previous frame's labels carried (chosen leaving one sequence out).
 CARRY_WEIGHT = 0.5
 #: Weight of the key frame's colour model (fixed: the unit the other weights are relative to).
 COLOUR_WEIGHT = 0.5
 #: Weight of the key frame's labels carried by the key flow (chosen leaving one sequence out).
 KEY_WEIGHT = 1.0
-#: Width of the key term's trust in the colour residual, grey levels (chosen leaving one sequence out).
+#: Width of the trust in a residual (the key term's colour, the chain's grey levels; chosen leaving one out).
 RESIDUAL_SIGMA = 40.0
 #: Gaussian (px, working size) on the carried previous labels before their logit (chosen leaving one out).
 CARRY_BLUR = 4.0
-#: Gaussian (px, working size) on the colour residual.
+#: Gaussian (px, working size) on a residual before its trust.
 RESIDUAL_BLUR = 2.0
 #: The chain is trusted by its residual everywhere, not only near its object, once the flow carried less than this
 #: share of the previous frame's object (of 0.25, 0.5, 0.75, chosen by 28-29 of the 30 folds of DAVIS 2016's train set).
@@ -369,14 +367,18 @@ def can_follow(labels: np.ndarray) -> bool:
 
 def _chain_trust(grey: np.ndarray, previous_grey: np.ndarray, field: np.ndarray, carried: np.ndarray,
                  previous_area: int) -> np.ndarray:
-    """(h, w) float32 in (0, 1]: the key term's trust (:data:`RESIDUAL_SIGMA`) in the new frame's (``grey``) residual
-    against the previous frame carried by ``field``, within :data:`NEAR` px of the object it ``carried`` (1 farther), or
-    everywhere when that is under :data:`LOST_SHARE` of the previous object's ``previous_area`` px (the flow lost it)."""
-    residual = np.abs(grey.astype(np.float32) - _warp(previous_grey.astype(np.float32), field))
-    trust = np.exp(-(cv2.GaussianBlur(residual, (0, 0), RESIDUAL_BLUR) / RESIDUAL_SIGMA) ** 2)
+    """(h, w) float32 in (0, 1]: :func:`_trust` in the new frame's (``grey``) residual against the previous frame
+    carried by ``field``, within :data:`NEAR` px of the object it ``carried`` (1 farther), or everywhere when that is
+    under :data:`LOST_SHARE` of the previous object's ``previous_area`` px (the flow lost it; an empty one is not)."""
+    trust = _trust(np.abs(grey.astype(np.float32) - _warp(previous_grey.astype(np.float32), field)))
     if int((on := carried > 0.5).sum()) < LOST_SHARE * previous_area:
         return trust
     return np.where(cv2.distanceTransform((~on).astype(np.uint8), cv2.DIST_L2, 3) > NEAR * SCALE, np.float32(1), trust)
+
+
+def _trust(residual: np.ndarray) -> np.ndarray:
+    """``exp(-(r / RESIDUAL_SIGMA)^2)`` of a residual blurred by :data:`RESIDUAL_BLUR` px: how far a flow explains it."""
+    return np.exp(-(cv2.GaussianBlur(residual, (0, 0), RESIDUAL_BLUR) / RESIDUAL_SIGMA) ** 2)
 
 
 def _warp(values: np.ndarray, field: np.ndarray) -> np.ndarray:
@@ -492,15 +494,14 @@ class ObjectFollower(OneStream):
         carried = _warp(carry.labels.astype(np.float32), previous_field) if back is None else back
         colour = COLOUR_WEIGHT * self._colours[index]
         t2 = time.perf_counter()
-        residual = np.abs(rgb.astype(np.float32) - _warp(self._key_rgb, key_field)).mean(axis=2)
-        trust = np.exp(-(cv2.GaussianBlur(residual, (0, 0), RESIDUAL_BLUR) / RESIDUAL_SIGMA) ** 2)
+        trust = _trust(np.abs(rgb.astype(np.float32) - _warp(self._key_rgb, key_field)).mean(axis=2))
         on_key, on_chain = _warp(self._share, key_field) > 0.5, carried > 0.5
         gate = float((on_key & on_chain).sum()) / max(1, int((on_key | on_chain).sum()))
         prior = CARRY_WEIGHT * _logit(cv2.GaussianBlur(carried, (0, 0), CARRY_BLUR), 1e-4)
         if back_trust is not None:  # carried from the frame before the cut, trusted as the previous frame would be
             prior *= back_trust
         elif not cut["cut"]:
-            prior *= _chain_trust(grey, previous_grey, previous_field, carried, int(carry.labels.sum()))
+            prior *= _chain_trust(grey, previous_grey, previous_field, carried, int(np.count_nonzero(carry.labels)))
         prior += (KEY_WEIGHT * gate ** GATE_POWER) * trust * _warp(self._key_logit, key_field)
         fused, far_share = colour + prior, getattr(self, "_far_share", None)  # None in a follower pickled before it
         labels, confidence, log_odds = _read(prior, COLOUR_WEIGHT * self._colours[_colour_index(frame.rgb)],
@@ -523,14 +524,13 @@ class ObjectFollower(OneStream):
     def _search(self, grey: np.ndarray, colours: np.ndarray,
                 held: FollowCarry | None) -> tuple[np.ndarray | None, np.ndarray | None, FollowCarry | None]:
         """``(carried, trust, held)``: whether the new frame (``grey``, ``colours``) is back in the shot where a cut
-        lost the object, whose last frame holding it is ``held`` (None: the object is not lost at a cut).
-        The new frame is tested against that frame with the cut test's two signals (:func:`cut_evidence`, on
-        a DIS flow from the new frame to it): where neither says another scene (the residual at most
-        :data:`CUT_RESIDUAL`, the colour change at most :data:`CUT_COLOUR_CHANGE`), the frame is back in that
-        shot: that frame's labels carried by the flow are the new frame's carried labels (float32 (h, w)), trusted
-        as if it were the previous frame (:func:`_chain_trust`), and nothing is held any more. Otherwise
-        ``(None, None, held)``: one signal alone keeps the object lost, so that a frame of another place in like
-        colours (a CamVid street against breakdance's: colour change 0.441, residual 0.888) is not taken for it."""
+        lost the object, whose last frame holding it is ``held`` (None: not lost at a cut), by the cut test's two
+        signals (:func:`cut_evidence`) on a DIS flow from the new frame to that frame: where neither says another
+        scene (residual at most :data:`CUT_RESIDUAL`, colour change at most :data:`CUT_COLOUR_CHANGE`), that frame's
+        labels carried by the flow (float32 (h, w)), trusted as if it were the previous frame (:func:`_chain_trust`),
+        and nothing held any more. Otherwise ``(None, None, held)``: one signal alone keeps the object lost, so that a
+        frame of another place in like colours (a CamVid street against breakdance's: colour change 0.441, residual
+        0.888) is not taken for it."""
         from ..registration.flow import dis_flow, flow_field
 
         if held is None:
@@ -540,7 +540,7 @@ class ObjectFollower(OneStream):
         if test["residual"] > CUT_RESIDUAL or test["colour_change"] > CUT_COLOUR_CHANGE:
             return None, None, held
         carried = _warp(held.labels.astype(np.float32), field)
-        return carried, _chain_trust(grey, held.grey, field, carried, int(held.labels.sum())), None
+        return carried, _chain_trust(grey, held.grey, field, carried, int(np.count_nonzero(held.labels))), None
 
     @property
     def carry(self) -> FollowCarry | None:

@@ -28,42 +28,15 @@ from typing import BinaryIO
 import numpy as np
 
 from .classes import DEFAULT_TABLE, ClassTable
+from .classes.files import cvat_table
 from .errors import InputError
 from .formats import check_regular_file
 
-__all__ = ["FORMATS", "RunLabels", "read_run", "read_labels", "labelled_frames", "labels_with_confidence", "instance_colours",
+__all__ = ["FORMATS", "cvat_table", "RunLabels", "read_run", "read_labels", "labelled_frames", "labels_with_confidence", "instance_colours",
            "cvat_mask_archive", "write_cvat_mask", "write_cvat_mask_archive", "default_name"]
 
 #: The formats ``pcreg export`` writes.
 FORMATS: tuple[str, ...] = ("cvat-mask",)
-
-
-def cvat_table(table: ClassTable) -> ClassTable:
-    """``table`` as the archive writes it: its unknown class black, the background CVAT's import leaves
-    unlabelled (a table whose unknown had another colour, a task's ``background`` of (10, 10, 10) say, was
-    refused after its run was labelled). A known class in black (the background of a VOC palette, a class of its
-    own under a table whose unknown is void) is written in the first colour of VOC's colour map that no known class
-    has (the unknown's own, freed as it goes black, among them): it was refused after its run was labelled, and
-    CVAT's import matches a class to the task's label by name, the colours only telling the archive's classes
-    apart."""
-    from dataclasses import replace
-
-    from .classes import voc_colormap
-    from .classes.files import BACKGROUND
-
-    black = BACKGROUND[1]
-    if table.unknown_class.colour == black:
-        return table
-    free = None
-    if any(c.colour == black for c in table.known):  # the unknown's own colour is freed by its going black
-        # ids are 0-255 and one is the unknown's: black and at most 254 other known colours, of VOC's 255
-        taken = {c.colour for c in table.known}
-        free = next(rgb for rgb in (tuple(int(v) for v in c) for c in voc_colormap(256)[1:]) if rgb not in taken)
-
-    def written(c):
-        return replace(c, colour=black if c.id == table.unknown else free if c.colour == black else c.colour)
-
-    return replace(table, classes=tuple(written(c) for c in table.classes))
 
 
 def instance_colours(table: ClassTable) -> dict[int, tuple[int, int, int]]:

@@ -327,11 +327,11 @@ def _table(export: CvatExport, classes: str | None) -> tuple[ClassTable, ClassTa
 def _named_table(given: ClassTable, given_where: str, read: ClassTable, where: str) -> ClassTable:
     """``given`` (``--classes``) in the colours of the export's label map ``read`` when that lists the same classes
     by name and colour and the same colour for the unknown, whatever their order, or the colours pcreg's export
-    writes ``given`` in (:func:`pcreg.export.cvat_table`: its unknown black, a black known class in a colour of its
+    writes ``given`` in (:func:`~pcreg.classes.files.cvat_table`: its unknown black, a black known class in a colour of its
     own), so that a run's own export reads back under its own table: a label map holds no ids, so the ids are
     ``given``'s (a table whose unknown is 0, as ADE20K's, or whose ids have gaps, reads back as itself).
     Else an :class:`InputError` naming ``where`` and a class that one of them lacks."""
-    from ..export import cvat_table
+    from .files import cvat_table
 
     theirs = {(c.name, c.colour) for c in read.known}
     for coloured in (given, cvat_table(given)):

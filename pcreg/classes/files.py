@@ -42,7 +42,7 @@ from ..formats import KeyWrittenTwice, NumberTooLong, loads_json
 from ..validation import short_repr
 
 __all__ = ["LABELMAP_FILE", "LABELMAP_HEADER", "labelmap_lines", "parse_labelmap", "read_labelmap", "labelmap_text", "write_labelmap",
-           "parse_table_json", "table_json", "read_table_file", "class_table", "voc_colormap"]
+           "parse_table_json", "table_json", "read_table_file", "class_table", "voc_colormap", "cvat_table"]
 
 #: The label map's file name in a VOC / CVAT "Segmentation mask" archive.
 LABELMAP_FILE = "labelmap.txt"
@@ -316,3 +316,28 @@ def class_table(spec: str | Path | ClassTable | None) -> ClassTable:
         named = str(spec) if len(str(spec)) <= 120 else short_repr(str(spec))
         raise InputError(f"{named}: neither a built-in class table ({', '.join(TABLES)}) nor a file")
     return read_table_file(p)
+
+
+def cvat_table(table: ClassTable) -> ClassTable:
+    """``table`` as the archive writes it: its unknown class black, the background CVAT's import leaves
+    unlabelled (a table whose unknown had another colour, a task's ``background`` of (10, 10, 10) say, was
+    refused after its run was labelled). A known class in black (the background of a VOC palette, a class of its
+    own under a table whose unknown is void) is written in the first colour of VOC's colour map that no known class
+    has (the unknown's own, freed as it goes black, among them): it was refused after its run was labelled, and
+    CVAT's import matches a class to the task's label by name, the colours only telling the archive's classes
+    apart."""
+    from dataclasses import replace
+
+    black = BACKGROUND[1]
+    if table.unknown_class.colour == black:
+        return table
+    free = None
+    if any(c.colour == black for c in table.known):  # the unknown's own colour is freed by its going black
+        # ids are 0-255 and one is the unknown's: black and at most 254 other known colours, of VOC's 255
+        taken = {c.colour for c in table.known}
+        free = next(rgb for rgb in (tuple(int(v) for v in c) for c in voc_colormap(256)[1:]) if rgb not in taken)
+
+    def written(c):
+        return replace(c, colour=black if c.id == table.unknown else free if c.colour == black else c.colour)
+
+    return replace(table, classes=tuple(written(c) for c in table.classes))

@@ -36,13 +36,11 @@ is a logistic of the sum's magnitude (:data:`CONFIDENCE_SLOPE`, :data:`CONFIDENC
 labels hold no object (it left the frame), the colour term's alone, since the carried 'nowhere' saw nothing
 (an object that left the frame is not searched for again; the five DAVIS sequences never lose theirs).
 
-**A scene cut loses the object** (:func:`cut_evidence`): where the previous frame, carried by the flow
-just found, leaves a mean grey residual above :data:`CUT_RESIDUAL` (0.3) of chance's (two unrelated
-pixels') and the two frames' colour histograms share less than 1 - :data:`CUT_COLOUR_CHANGE` (0.55), the
-carried labels say nothing of the new frame: they are dropped, the frame is read as lost. Real frames
-reach 0.145 (DAVIS) and, at one frame a second, 0.63 with colour changes of at most 0.401 (CamVid); 146
-of 148 cuts built between those clips are found (DAVIS's all: residual at least 0.435, colour change at
-least 0.5; docs/results.md, "Scene cuts").
+**A scene cut loses the object** (:func:`cut_evidence`): where the previous frame, carried by the flow just found,
+leaves a mean grey residual above :data:`CUT_RESIDUAL` (0.3) of chance's (two unrelated pixels') and the two frames'
+colour histograms share less than 1 - :data:`CUT_COLOUR_CHANGE` (0.55), the carried labels say nothing of the new
+frame: they are dropped, the frame is read as lost. Real frames reach 0.145 (DAVIS) and, at one frame a second, 0.63
+with colour changes of at most 0.401 (CamVid); 146 of 148 cuts built between those clips are found (docs/results.md).
 
 **An object lost at a cut is searched for where its shot returns** (shot, other shot, the first shot again):
 the last frame that held it is kept, and each later frame is tested against it with the cut test's two
@@ -206,20 +204,18 @@ def colour_change(colours: np.ndarray, reference_colours: np.ndarray) -> float:
 
 
 def cut_evidence(grey: np.ndarray, colours: np.ndarray, reference_grey: np.ndarray,
-                 reference_colours: np.ndarray | None, field: np.ndarray) -> dict:
-    """Whether the new frame (``grey`` (h, w) uint8, its colour histogram ``colours``, :func:`frame_colours`)
-    shows another scene than the reference frame (``reference_grey``, ``reference_colours``), whose motion to
-    it the flow ``field`` ((h, w, 2) float32, reference coordinates of every new pixel) was found to be:
-    ``residual``, the new frame's mean grey residual against the reference carried by the flow, as a share of
-    chance (:func:`_chance_residual`); ``colour_change``, one minus the intersection of the two colour
-    histograms (None without the reference's); ``cut``, both above their limits (:data:`CUT_RESIDUAL`,
-    :data:`CUT_COLOUR_CHANGE`): the flow explains the new frame little better than chance, and its colours
-    changed. A cut that keeps the colours (two views of one place) or a frame the flow cannot follow (a
-    wide, fast motion) is not one. The follower tests each frame against the previous one; a scene stream
-    (:class:`pcreg.Propagator`) against the last frame found in its key frame's scene (:mod:`pcreg.pipeline.cuts`:
-    the previous frame until a cut, the last frame before it after one)."""
-    warped = _warp(reference_grey.astype(np.float32), field)
-    residual = float(np.abs(grey.astype(np.float32) - warped).mean()) / max(_chance_residual(grey, reference_grey), 1e-6)
+                 reference_colours: np.ndarray | None, field: np.ndarray, difference: np.ndarray | None = None) -> dict:
+    """Whether the new frame (``grey`` (h, w) uint8, its colour histogram ``colours``, :func:`frame_colours`) shows
+    another scene than the reference frame (``reference_grey``, ``reference_colours``), whose motion to it the flow
+    ``field`` ((h, w, 2) float32, reference coordinates of every new pixel) was found to be: ``residual``, the mean
+    of their ``difference`` along it (:func:`_difference`, given where the caller has it) as a share of chance
+    (:func:`_chance_residual`); ``colour_change``, one minus the intersection of the two colour histograms (None
+    without the reference's); ``cut``, both above their limits (:data:`CUT_RESIDUAL`, :data:`CUT_COLOUR_CHANGE`).
+    A cut that keeps the colours (two views of one place) or a frame the flow cannot follow is not one. The
+    follower tests each frame against the previous one; a scene stream (:mod:`pcreg.pipeline.cuts`) against the
+    last frame found in its key frame's scene."""
+    difference = _difference(grey, reference_grey, field) if difference is None else difference
+    residual = float(difference.mean()) / max(_chance_residual(grey, reference_grey), 1e-6)
     change = None if reference_colours is None else colour_change(colours, reference_colours)
     cut = change is not None and residual > CUT_RESIDUAL and change > CUT_COLOUR_CHANGE
     return {"residual": residual, "colour_change": change, "cut": cut}
@@ -365,15 +361,18 @@ def can_follow(labels: np.ndarray) -> bool:
     return bool((lab == 1).any() and (_object_share(lab, WorkingSize(lab.shape, SCALE))[1] > 0.5).any())
 
 
-def _chain_trust(grey: np.ndarray, previous_grey: np.ndarray, field: np.ndarray, carried: np.ndarray,
-                 previous_area: int) -> np.ndarray:
-    """(h, w) float32 in (0, 1]: :func:`_trust` in the new frame's (``grey``) residual against the previous frame
-    carried by ``field``, within :data:`NEAR` px of the object it ``carried`` (1 farther), or everywhere when that is
-    under :data:`LOST_SHARE` of the previous object's ``previous_area`` px (the flow lost it; an empty one is not)."""
-    trust = _trust(np.abs(grey.astype(np.float32) - _warp(previous_grey.astype(np.float32), field)))
+def _difference(grey: np.ndarray, reference_grey: np.ndarray, field: np.ndarray) -> np.ndarray:
+    """(h, w) float32: |the new frame's grey levels - the reference frame's carried by ``field``|."""
+    return np.abs(grey.astype(np.float32) - _warp(reference_grey.astype(np.float32), field))
+
+
+def _chain_trust(difference: np.ndarray, carried: np.ndarray, previous_area: int) -> np.ndarray:
+    """(h, w) float32 in (0, 1]: :func:`_trust` in the new frame's ``difference`` from the previous frame along the
+    flow, within :data:`NEAR` px of the object it ``carried`` (1 farther), or everywhere when that is under
+    :data:`LOST_SHARE` of the previous object's ``previous_area`` px (the flow lost it; an empty one is not)."""
     if int((on := carried > 0.5).sum()) < LOST_SHARE * previous_area:
-        return trust
-    return np.where(cv2.distanceTransform((~on).astype(np.uint8), cv2.DIST_L2, 3) > NEAR * SCALE, np.float32(1), trust)
+        return _trust(difference)
+    return np.where(cv2.distanceTransform((~on).astype(np.uint8), cv2.DIST_L2, 3) > NEAR * SCALE, np.float32(1), _trust(difference))
 
 
 def _trust(residual: np.ndarray) -> np.ndarray:
@@ -484,7 +483,8 @@ class ObjectFollower(OneStream):
         t1 = time.perf_counter()
         index = _colour_index(rgb)
         histogram = _histogram(index)
-        cut = cut_evidence(grey, histogram, carry.grey, carry.colours, previous_field)
+        difference = _difference(grey, previous_grey, previous_field)  # the cut test's, and the chain's trust
+        cut = cut_evidence(grey, histogram, carry.grey, carry.colours, previous_field, difference)
         held, lost_here = carry.held, cut["cut"] and bool(carry.labels.any())
         if lost_here:  # the shot it is lost from: searched for again in the frames to come
             held = FollowCarry(carry.labels, carry.grey, carry.colours)
@@ -501,7 +501,7 @@ class ObjectFollower(OneStream):
         if back_trust is not None:  # carried from the frame before the cut, trusted as the previous frame would be
             prior *= back_trust
         elif not cut["cut"]:
-            prior *= _chain_trust(grey, previous_grey, previous_field, carried, int(np.count_nonzero(carry.labels)))
+            prior *= _chain_trust(difference, carried, int(np.count_nonzero(carry.labels)))
         prior += (KEY_WEIGHT * gate ** GATE_POWER) * trust * _warp(self._key_logit, key_field)
         fused, far_share = colour + prior, getattr(self, "_far_share", None)  # None in a follower pickled before it
         labels, confidence, log_odds = _read(prior, COLOUR_WEIGHT * self._colours[_colour_index(frame.rgb)],
@@ -536,11 +536,11 @@ class ObjectFollower(OneStream):
         if held is None:
             return None, None, None
         field = flow_field(dis_flow(grey, held.grey, FLOW_PRESET), self._grid)
-        test = cut_evidence(grey, colours, held.grey, held.colours, field)
+        test = cut_evidence(grey, colours, held.grey, held.colours, field, difference := _difference(grey, held.grey, field))
         if test["residual"] > CUT_RESIDUAL or test["colour_change"] > CUT_COLOUR_CHANGE:
             return None, None, held
         carried = _warp(held.labels.astype(np.float32), field)
-        return carried, _chain_trust(grey, held.grey, field, carried, int(np.count_nonzero(held.labels))), None
+        return carried, _chain_trust(difference, carried, int(np.count_nonzero(held.labels))), None
 
     @property
     def carry(self) -> FollowCarry | None:

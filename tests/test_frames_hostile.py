@@ -112,15 +112,20 @@ def test_a_key_frame_whose_orientation_its_labels_size_cannot_tell_is_said(tmp_p
     assert "orientation" in json.loads((out / "run.json").read_text())["notes"]
 
 
-def test_a_quarter_turn_of_frames_not_square_needs_no_note(tmp_path, capsys):
+def test_a_quarter_turn_of_frames_not_square_says_its_masks_lie_on_the_pixels_as_stored(tmp_path, capsys):
     frames, labels = _scene((48, 64), 4)
     folder = tmp_path / "frames"
     folder.mkdir()
     for i, rgb in enumerate(frames):
         _jpeg(folder / f"f{i}.jpg", rgb, 6)
     cv2.imwrite(str(tmp_path / "key.png"), labels)  # drawn on the pixels as stored: their size says so
-    assert main(["run", str(folder), "--labels", str(tmp_path / "key.png"), "--out", str(tmp_path / "out")]) == 0
-    assert "orientation" not in capsys.readouterr().err
+    out = tmp_path / "out"
+    assert main(["run", str(folder), "--labels", str(tmp_path / "key.png"), "--out", str(out)]) == 0
+    said = [line for line in one_line_errors(capsys) if "EXIF orientation 6" in line]
+    assert len(said) == 1 and "fit the pixels as stored" in said[0] and "CVAT" in said[0] and "exiftran" in said[0]
+    assert "orientation" in json.loads((out / "run.json").read_text())["notes"]
+    assert main(["export", str(out), "--format", "cvat-mask", "--to", str(tmp_path / "cvat.zip")]) == 0
+    assert any("EXIF orientation 6" in line for line in one_line_errors(capsys))  # the export says it again
 
 
 def test_the_command_as_a_process_refuses_a_turned_frame_in_one_line(tmp_path):

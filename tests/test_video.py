@@ -7,6 +7,7 @@ import gc
 import json
 import struct
 
+import av
 import cv2
 import numpy as np
 import pytest
@@ -164,6 +165,13 @@ def test_bad_videos_and_options_are_refused_in_one_line(tmp_path, frames, capsys
     cv2.VideoWriter(str(empty_mp4), cv2.VideoWriter_fourcc(*"mp4v"), 10, (160, 120)).release()
     small = tmp_path / "small.png"
     cv2.imwrite(str(small), frames[0].labels[:60])
+    sound = tmp_path / "sound.mp4"  # a recording of sound alone
+    with av.open(str(sound), "w") as container:
+        stream = container.add_stream("aac", rate=8000)
+        tone = av.AudioFrame.from_ndarray(np.zeros((1, 1024), np.float32), format="fltp", layout="mono")
+        tone.sample_rate = 8000
+        for packet in [*stream.encode(tone), *stream.encode(None)]:
+            container.mux(packet)
 
     def refused(source, *extra, labels=tmp_path / "key.png"):
         out = tmp_path / "o"
@@ -181,7 +189,8 @@ def test_bad_videos_and_options_are_refused_in_one_line(tmp_path, frames, capsys
     assert f"{other}: not a folder or a video file" in refused(other)
     assert f"{cut_mp4}: an MP4 or QuickTime file without its index (no moov box)" in refused(cut_mp4)
     assert f"{empty_avi}: no frame decodes" in refused(empty_avi)
-    assert f"{empty_mp4}: holds no video stream" in refused(empty_mp4)
+    assert f"{empty_mp4}: holds no video stream (no stream at all" in refused(empty_mp4)
+    assert f"{sound}: holds no video stream (only audio streams: a recording of sound alone" in refused(sound)
     assert "--every: expected an integer" in refused(good, "--every", 0)
     assert f"--start 8 is past the end of {good} (8 frames)" in refused(good, "--start", 8)
     assert "--stop 3 must be greater than --start 3" in refused(good, "--start", 3, "--stop", 3)

@@ -69,10 +69,16 @@ class FolderView:
     def notes(self) -> tuple[tuple[str, str], ...]:
         """The key frame's note: its EXIF orientation, where viewers show it of the same size as stored (a half turn, a
         mirror, or a quarter turn of a square frame), so that labels drawn on the view fit the stored pixels as well;
-        else none (labels of the size turned are refused for their size)."""
+        or a quarter turn of labels that fit the pixels as stored (labels of the size turned are refused for their size),
+        whose masks a viewer or a CVAT task of these frames shows turned against them; none without one."""
         o, shape = self.orientation, self.shape
-        if o is None or shape is None or (o >= 5 and shape[0] != shape[1]):
+        if o is None or shape is None:
             return ()
+        if o >= 5 and shape[0] != shape[1]:  # labels of the size shown are refused: these were drawn on the pixels as stored
+            return ((ORIENTATION, f"{self.key}: the key frame {_said(o)}, and its labels fit the pixels as stored, which "
+                     "pcreg labels (its label PNGs and exports lie on them so): a viewer, or a CVAT task made of these "
+                     f"frames, shows them turned, where those masks do not fit; to label the frames as shown, {TURN}, "
+                     "and run again with --force"),)
         return ((ORIENTATION, f"{self.key}: the key frame {_said(o)}, at the size it is stored: pcreg reads "
                  "the frames' pixels as stored and takes --labels as drawn on them so (the label PNGs it writes lie "
                  f"on them so too); if the labels were drawn on the frame as a viewer shows it, {TURN}, and run again "

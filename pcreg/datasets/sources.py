@@ -301,8 +301,10 @@ class VideoFrames:
                                  f"not as {', '.join(_CONTAINERS.values())}); {convert_hint(self.path)}")
             raise InputError(f"{self.path}: not a video (FFmpeg reads it as {fmt}, not as {', '.join(_CONTAINERS.values())})")
         if not container.streams.video:
+            kinds = sorted({s.type for s in container.streams})
             container.close()
-            raise InputError(f"{self.path}: holds no video stream (an empty or damaged {_CONTAINERS[fmt]} file)")
+            held = f"only {' and '.join(kinds)} streams: a recording of sound alone, or" if kinds else "no stream at all:"
+            raise InputError(f"{self.path}: holds no video stream ({held} an empty or damaged {_CONTAINERS[fmt]} file)")
         if container.streams.video[0].codec_context is None:  # PyAV opens no decoder for a codec FFmpeg does not know
             container.close()
             raise InputError(f"{self.path}: its video stream is in a codec FFmpeg does not know (a damaged header, or "

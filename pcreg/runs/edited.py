@@ -149,11 +149,14 @@ def frame_moved(frames, t: int, name: str) -> bool:
     never labelled one whose step is lost); never for a video, whose frames are named by their number."""
     from ..datasets.sources import FolderFrames
 
-    return isinstance(frames, FolderFrames) and t < len(frames) and frames.name(t) != name
+    return isinstance(frames, FolderFrames) and (t >= len(frames) or frames.name(t) != name)
 
 
 def moved_error(frames, folder: Path, t: int, name: str) -> InputError:
     """What the review says of a frame the run in ``folder`` labelled as ``name`` at position ``t`` (:func:`frame_moved`)."""
+    if t >= len(frames):  # removed from the end (as the run resumed would refuse it)
+        return InputError(f"{frames.path}: holds {len(frames)} frames, the run in {folder} labelled {name} as frame {t}: "
+                          "the frames changed since the run (a frame removed)")
     return InputError(f"{frames.path}: holds {frames.name(t)} as frame {t}, which the run in {folder} labelled as "
                       f"{name}: the frames changed since the run (a frame added, removed or renamed)")
 

@@ -29,6 +29,9 @@ def check_recording(out: Path, identity: dict | None, record: Path) -> None:
     from ..formats import load_json_object, resolved
     from ..recording.readback import ended
 
+    if record.is_file() and not (out / STATE).is_file():  # no run whose recording it could be: before anything is written
+        raise OutputError(f"{record} exists, and {out} holds no run yet whose recording it could be (another run's, or "
+                          "another file); give another --record file, or add --force to write over it")
     try:
         if not record.is_file():
             return

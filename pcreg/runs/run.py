@@ -344,10 +344,11 @@ class Run:
     def _written(self) -> list[Path]:
         """The files and folders of the run in ``out`` (:meth:`_start_over`'s), but the run's inputs (the key labels in
         --out, or --out a folder of them)."""
+        from ..export import FORMATS, default_name
         from ..formats import resolved
 
         kept = {resolved(p) for p in run_inputs(self.identity)}
-        names = [self.out / n for n in RUN_FILES]
+        names = [self.out / n for n in RUN_FILES] + [self.out / default_name(f) for f in FORMATS]  # its exports, of its labels
         return [f for f in sorted(labels_written(self.out)) + names if resolved(f) not in kept and resolved(f).parent not in kept]
 
     def _remove_partial_writes(self) -> None:

@@ -1,0 +1,75 @@
+"""A run's folder at its edges: frames removed from the end of the folder since the run (the review and the export
+said nothing, and the archive held masks of frames gone), a ``--record`` file there already when ``--out`` holds no
+run (refused only once the key frame's labels were written), and ``--force`` leaving the earlier run's export."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+
+import cv2
+import pytest
+
+import pcreg
+from pcreg.cli import main
+from pcreg.errors import InputError
+from pcreg.review import read_review
+
+
+@pytest.fixture(scope="module")
+def synthetic():
+    return pcreg.synthetic("syn1a", 5, 0, width=96, height=72)
+
+
+def _run(tmp_path, synthetic, keys: bool = False, *extra):
+    folder = tmp_path / "frames"
+    folder.mkdir(exist_ok=True)
+    for i, f in enumerate(synthetic):
+        cv2.imwrite(str(folder / f"f{i}.png"), f.image[:, :, ::-1])
+    (tmp_path / "keys").mkdir(exist_ok=True)
+    for k in (0, 2) if keys else (0,):
+        cv2.imwrite(str(tmp_path / "keys" / f"f{k}.png"), synthetic[k].labels)
+    labels = tmp_path / "keys" if keys else tmp_path / "keys" / "f0.png"
+    with contextlib.redirect_stdout(io.StringIO()):
+        rc = main(["run", str(folder), "--labels", str(labels), "--out", str(tmp_path / "out"), *map(str, extra)])
+    return folder, tmp_path / "out", rc
+
+
+@pytest.mark.parametrize("keys", [False, True], ids=["one label image", "a folder of key frames"])
+def test_frames_removed_from_the_end_of_the_folder_are_named_by_the_review_and_the_export(tmp_path, synthetic, capsys, keys):
+    folder, out, rc = _run(tmp_path, synthetic, keys)
+    assert rc == 0
+    (folder / "f4.png").unlink()
+    (folder / "f3.png").unlink()
+    with pytest.raises(InputError) as caught:
+        read_review(out)
+    assert str(caught.value) == (f"{folder}: holds 3 frames, the run in {out} labelled f3.png as frame 3: the frames "
+                                 "changed since the run (a frame removed)")
+    capsys.readouterr()
+    assert main(["export", str(out)]) == 2
+    assert "labelled f3.png as frame 3" in capsys.readouterr().err
+    assert not (out / "export-cvat-mask.zip").exists()
+
+
+def test_a_record_file_there_already_with_no_run_in_out_is_refused_before_anything_is_written(tmp_path, synthetic, capsys):
+    other = tmp_path / "other.rrd"
+    other.write_bytes(b"another run's recording")
+    _, out, rc = _run(tmp_path, synthetic, False, "--record", other)
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert f"{other} exists, and {out} holds no run yet whose recording it could be" in err
+    assert not out.exists() or not any(out.iterdir())  # nothing written
+    assert other.read_bytes() == b"another run's recording"
+
+
+def test_a_run_started_over_leaves_no_export_of_the_earlier_labels(tmp_path, synthetic):
+    _, out, rc = _run(tmp_path, synthetic)
+    assert rc == 0
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["export", str(out)]) == 0
+    assert (out / "export-cvat-mask.zip").is_file()
+    _, out, rc = _run(tmp_path, synthetic, False, "--force")
+    assert rc == 0
+    assert not (out / "export-cvat-mask.zip").exists()  # an archive of the labels replaced
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["export", str(out)]) == 0

@@ -1,6 +1,7 @@
 """A run's folder at its edges: frames removed from the end of the folder since the run (the review and the export
 said nothing, and the archive held masks of frames gone), a ``--record`` file there already when ``--out`` holds no
-run (refused only once the key frame's labels were written), and ``--force`` leaving the earlier run's export."""
+run (refused only once the key frame's labels were written), ``--force`` leaving the earlier run's export, and an
+evaluation's units kept under a clip's name too long for a file's."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import contextlib
 import io
 
 import cv2
+import numpy as np
 import pytest
 
 import pcreg
@@ -73,3 +75,23 @@ def test_a_run_started_over_leaves_no_export_of_the_earlier_labels(tmp_path, syn
     assert not (out / "export-cvat-mask.zip").exists()  # an archive of the labels replaced
     with contextlib.redirect_stdout(io.StringIO()):
         assert main(["export", str(out)]) == 0
+
+
+def test_an_evaluation_of_a_clip_named_near_the_longest_name_finishes_and_resumes(tmp_path, capsys):
+    """Its finished unit was kept as ``units/NAME_reference.json``, past the 255 bytes of a name: every run of the
+    command stopped there (exit 2, "File name too long") and none could finish."""
+    clip = tmp_path / "data" / ("c" * 250)
+    for sub in ("images", "labels"):
+        (clip / sub).mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    for i in range(3):
+        cv2.imwrite(str(clip / "images" / f"f{i:02d}.png"), rng.integers(0, 256, (40, 48, 3), dtype=np.uint8))
+        cv2.imwrite(str(clip / "labels" / f"f{i:02d}.png"), np.repeat(np.arange(12, dtype=np.uint8), 4)[None, :].repeat(40, 0))
+    out = tmp_path / "out"
+    args = ["evaluate", "stream", "--data", f"camvid:{clip.parent}", "--classes", "camvid11", "--methods", "plain", "--out", str(out)]
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(args) == 0, capsys.readouterr().err
+        kept = sorted(p.name for p in (out / "units").iterdir())
+        assert kept and all(len(name.encode()) <= 200 for name in kept)
+        assert main(args) == 0  # resumed from the units kept
+    assert sorted(p.name for p in (out / "units").iterdir()) == kept

@@ -11,7 +11,9 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
+import os
 import shutil
 import sys
 from dataclasses import asdict, dataclass, field, replace
@@ -305,8 +307,19 @@ def _check_units_folder(folder: Path) -> None:
 
 
 def unit_path(out: str | Path, key: str) -> Path:
-    """The file of ``out/units/`` that keeps the finished unit ``key``."""
-    return Path(out) / "units" / f"{key}.json"
+    """The file of ``out/units/`` that keeps the finished unit ``key``: ``KEY.json``, or, where that is longer than a
+    file's name may be (a clip's folder named near the 255 bytes a name holds), the key's first bytes and a digest of
+    it all (a key's results name it inside)."""
+    name = f"{key}.json"
+    if len(os.fsencode(name)) > _LONGEST_NAME:
+        raw = os.fsencode(key)
+        name = f"{os.fsdecode(raw[:_LONGEST_NAME - 40])}-{hashlib.sha256(raw).hexdigest()[:16]}.json"
+    return Path(out) / "units" / name
+
+
+#: The longest file name a unit is kept under, in bytes: under the 255 of Linux, macOS and Windows' file systems,
+#: with room for the temporary name written first (:func:`pcreg.outputs.atomic_write_bytes`).
+_LONGEST_NAME = 200
 
 
 def discard_units(out: str | Path, units: list) -> None:

@@ -33,7 +33,7 @@ from pathlib import Path
 from ..errors import InputError, PcregError
 from ..formats import file_of
 from .entities import FRAME_TIMELINE
-from .viewer import REUSE_ADDRESS, ViewerError, check_bind, free_port, port_free, serve_web, stop, url_host
+from .viewer import REUSE_ADDRESS, ViewerError, check_bind, check_port, free_port, serve_web, stop, url_host
 
 __all__ = ["ReportServer", "viz_dir"]
 
@@ -224,8 +224,7 @@ class ReportServer:
             raise InputError(f"--bind {bind}: cannot listen there ({exc.strerror or exc})") from None
         if recording is not None and web_port == grpc_port:
             raise InputError(f"--web-port and --grpc-port must differ (both {web_port})")
-        if not port_free(probe, web_port):
-            raise InputError(f"--web-port {web_port}: the port is in use on {bind} (choose another, or 0 for any free port)")
+        check_port("--web-port", web_port, probe, bind)
         self._viewer_port = None
         if recording is not None:
             try:

@@ -33,7 +33,7 @@ import numpy as np
 
 from ..errors import InputError, PcregError
 from .report import QuietHandler, listen, viz_dir
-from .viewer import check_bind, free_port, port_free
+from .viewer import check_bind, check_port, free_port
 
 __all__ = ["ReviewServer"]
 
@@ -107,8 +107,7 @@ class ReviewServer:
             web_port = web_port or free_port(probe)
         except OSError as exc:
             raise InputError(f"--bind {bind}: cannot listen there ({exc.strerror or exc})") from None
-        if not port_free(probe, web_port):
-            raise InputError(f"--web-port {web_port}: the port is in use on {bind} (choose another, or 0 for any free port)")
+        check_port("--web-port", web_port, probe, bind)
         self._tmp = None
         if review.kind == "video" and cache is None:
             cache = review.folder / CACHE / _video_key(review.source)

@@ -291,16 +291,37 @@ REUSE_ADDRESS = os.name != "nt"
 
 
 def port_free(host: str, port: int) -> bool:
-    """Whether a server can listen on ``host``:``port`` (another one listening there: no)."""
+    """Whether a server can listen on ``host``:``port`` (another one listening there, or a port this user may not
+    take: no)."""
+    return port_problem(host, port) is None
+
+
+def port_problem(host: str, port: int, bind: str | None = None) -> str | None:
+    """Why a server cannot listen on ``host``:``port`` (``bind`` as the person gave it, for the message), None where
+    it can: the port in use, a privileged port, or what the system said."""
+    import errno
+
     family = socket.AF_INET6 if ":" in host else socket.AF_INET
     with socket.socket(family, socket.SOCK_STREAM) as s:
         if REUSE_ADDRESS:
             s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             s.bind((host, port))
-        except OSError:
-            return False
-    return True
+        except OSError as exc:
+            if exc.errno == errno.EADDRINUSE:
+                return f"the port is in use on {bind or host} (choose another, or 0 for any free port)"
+            if exc.errno == errno.EACCES:
+                return ("a privileged port (below 1024 on most systems), which only root or a program with the "
+                        "CAP_NET_BIND_SERVICE capability may listen on (choose one above 1023, or 0 for any free port)")
+            return f"cannot listen on it on {bind or host} ({exc.strerror or exc}; choose another, or 0 for any free port)"
+    return None
+
+
+def check_port(flag: str, port: int, host: str, bind: str) -> None:
+    """An :class:`InputError` for ``flag`` ``port`` where a server cannot listen on it (:func:`port_problem`)."""
+    problem = port_problem(host, port, bind)
+    if problem is not None:
+        raise InputError(f"{flag} {port}: {problem}")
 
 
 def url_host(bind: str) -> str:
@@ -346,8 +367,7 @@ def serve_web(
     if web_port == grpc_port:
         raise InputError(f"--web-port and --grpc-port must differ (both {web_port})")
     for name, port in (("--web-port", web_port), ("--grpc-port", grpc_port)):
-        if not port_free(probe, port):
-            raise InputError(f"{name} {port}: the port is in use on {bind} (choose another, or 0 for any free port)")
+        check_port(name, port, probe, bind)
     # the recording is sent once the server listens (:func:`_send`), not named here: given a file, rerun's server keeps
     # a core busy for as long as it serves
     cmd = [binary, "--serve-web", "--bind", bind, "--port", str(grpc_port), "--web-viewer-port", str(web_port),

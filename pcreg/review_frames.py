@@ -186,9 +186,12 @@ class FrameImages:
                     self._wanted[t] -= 1
                     if not self._wanted[t]:
                         del self._wanted[t]
-            missed = self._missed.get(t)
+            missed, decoded = self._missed.get(t), self._have[t]
         path = self._path(t)
         if not path.is_file():
+            if decoded:  # written, then removed (the cache folder deleted while the page is served)
+                raise InputError(f"{path}: frame {self.review.names[t]} decoded, then removed from the review's folder of "
+                                 "decoded frames while the page was served; start pcreg view again to decode it again")
             raise InputError(missed or self._failed or f"{self.review.source}: frame {self.review.names[t]} was not decoded")
         from .formats import read_image_file
 

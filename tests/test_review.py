@@ -239,6 +239,25 @@ def test_the_server_renders_each_frame_on_request(which, request):
         assert len(cached) == 1 and sorted(p.name for p in cached[0].iterdir()) == [f"{i:06d}.jpg" for i in range(N)]
 
 
+
+def test_a_decoded_frame_removed_from_the_cache_while_served_says_so(video_out, tmp_path):
+    """The review's folder of a video's decoded frames deleted while the page was served: every frame not drawn yet
+    answered "clip.mp4: frame 000003 was not decoded", which it was. It names the file removed and what to do."""
+    from _events import until
+    from pcreg.recording.review import ReviewServer
+    from pcreg.review import CACHE, read_review
+
+    out = tmp_path / "out"
+    shutil.copytree(video_out, out, ignore=shutil.ignore_patterns(CACHE))
+    with ReviewServer(read_review(out), web_port=0) as server:
+        until(lambda: len(list((out / CACHE).rglob("*.jpg"))) == N, what="every frame decoded")
+        assert _get(server.url + "frame/0.jpg")[0] == "image/jpeg"
+        shutil.rmtree(out / CACHE)
+        with pytest.raises(urllib.error.HTTPError) as caught:
+            urllib.request.urlopen(server.url + "frame/3.jpg", timeout=30)
+        said = caught.value.read().decode()
+        assert "000003.jpg: frame 000003 decoded, then removed" in said and "start pcreg view again" in said, said
+
 # -- the page in a browser -----------------------------------------------------------------------------
 
 SHOWN_JS = "document.body.dataset.shown || ''"

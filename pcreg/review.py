@@ -183,7 +183,8 @@ def read_review(folder: str | Path) -> RunReview:
     stems = [frames.stem(t) for t in range(done)]
     steps: dict[str, dict] = {}  # of each step what the review shows: an hour's steps whole take about a GB
     steps_path = folder / STEPS
-    seen = FramesAsLabelled(frames, folder, "review", str(state["key_frame"]) if labelled is None else None)
+    seen = FramesAsLabelled(frames, folder, "review", str(state["key_frame"]) if labelled is None else None,
+                            keys=() if labelled is None else named)
     try:  # the steps run.json counts: a line after them (a run stopped by a full disk) is not read
         for step in counted_steps(folder, counted, recount=lambda: steps_counted_now(folder)):
             steps[str(step["name"])] = {k: step.get(k) for k in ("predicted_error", "predicted_iou", "error", "iou")}

@@ -29,7 +29,7 @@ def _run(tmp_path, synthetic, keys: bool = False, *extra):
     for i, f in enumerate(synthetic):
         cv2.imwrite(str(folder / f"f{i}.png"), f.image[:, :, ::-1])
     (tmp_path / "keys").mkdir(exist_ok=True)
-    for k in (0, 2) if keys else (0,):
+    for k in (0, 4) if keys else (0,):  # the last a key frame
         cv2.imwrite(str(tmp_path / "keys" / f"f{k}.png"), synthetic[k].labels)
     labels = tmp_path / "keys" if keys else tmp_path / "keys" / "f0.png"
     with contextlib.redirect_stdout(io.StringIO()):
@@ -41,15 +41,17 @@ def _run(tmp_path, synthetic, keys: bool = False, *extra):
 def test_frames_removed_from_the_end_of_the_folder_are_named_by_the_review_and_the_export(tmp_path, synthetic, capsys, keys):
     folder, out, rc = _run(tmp_path, synthetic, keys)
     assert rc == 0
-    (folder / "f4.png").unlink()
-    (folder / "f3.png").unlink()
+    (folder / "f4.png").unlink()  # with key frames, the last key frame alone: it has no step
+    if not keys:
+        (folder / "f3.png").unlink()
     with pytest.raises(InputError) as caught:
         read_review(out)
-    assert str(caught.value) == (f"{folder}: holds 3 frames, the run in {out} labelled f3.png as frame 3: the frames "
-                                 "changed since the run (a frame removed)")
+    said = (f"{folder}: no longer holds f4.png, a key frame of the run in {out}: frames were removed since the run"
+            if keys else f"{folder}: holds 3 frames, the run in {out} labelled f3.png as frame 3: frames were removed since the run")
+    assert str(caught.value).startswith(said) and "--force" in str(caught.value)
     capsys.readouterr()
     assert main(["export", str(out)]) == 2
-    assert "labelled f3.png as frame 3" in capsys.readouterr().err
+    assert said in capsys.readouterr().err
     assert not (out / "export-cvat-mask.zip").exists()
 
 
@@ -92,6 +94,17 @@ def test_an_evaluation_of_a_clip_named_near_the_longest_name_finishes_and_resume
     with contextlib.redirect_stdout(io.StringIO()):
         assert main(args) == 0, capsys.readouterr().err
         kept = sorted(p.name for p in (out / "units").iterdir())
-        assert kept and all(len(name.encode()) <= 200 for name in kept)
+        assert kept and all(len(name.encode()) <= 255 for name in kept)
         assert main(args) == 0  # resumed from the units kept
     assert sorted(p.name for p in (out / "units").iterdir()) == kept
+
+
+def test_a_unit_keeps_the_name_it_had_wherever_that_fits_and_is_cut_at_a_character():
+    from pcreg.experiments.units import unit_path
+
+    fits = "c" * 240 + "_reference"  # 255 bytes with .json: the name kept before, which a resumed evaluation finds
+    assert unit_path("o", fits).name == fits + ".json"
+    assert unit_path("o", "clip" * 46 + "/frame12_reference").parts[-2:] == ("clip" * 46, "frame12_reference.json")
+    cut = unit_path("o", "日" * 90 + "_reference").name  # 285 bytes: cut between two characters, with a digest
+    assert len(cut.encode()) <= 255 and cut.startswith("日" * 70) and cut.endswith(".json")
+    assert unit_path("o", "日" * 90 + "_reference") != unit_path("o", "日" * 90 + "_referencf")

@@ -9,9 +9,8 @@ import socket
 
 import pytest
 
-from pcreg.commands.view import _loopback
 from pcreg.errors import InputError
-from pcreg.recording.viewer import check_port, port_free, port_problem
+from pcreg.recording.viewer import check_port, loopback, port_free, port_problem
 
 
 def test_a_privileged_port_is_said_to_be_one_not_in_use(monkeypatch):
@@ -23,6 +22,7 @@ def test_a_privileged_port_is_said_to_be_one_not_in_use(monkeypatch):
     with pytest.raises(InputError) as caught:
         check_port("--web-port", 80, "127.0.0.1", "localhost")
     assert str(caught.value).startswith("--web-port 80: a privileged port") and "in use" not in str(caught.value)
+    assert "privileged" not in port_problem("127.0.0.1", 50000)  # refused above 1023: not for being privileged
 
 
 def test_a_port_in_use_is_said_to_be_in_use_under_the_address_given():
@@ -36,7 +36,8 @@ def test_a_port_in_use_is_said_to_be_in_use_under_the_address_given():
 
 
 @pytest.mark.parametrize("bind, alone", [("127.0.0.1", True), ("127.0.0.2", True), ("::1", True), ("localhost", True),
-                                         ("0.0.0.0", False), ("::", False), ("192.168.1.5", False), ("myhost", False)])
+                                         ("::ffff:127.0.0.1", True), ("0.0.0.0", False), ("::", False), ("192.168.1.5", False),
+                                         ("::ffff:192.168.1.5", False), ("myhost", False)])
 def test_only_an_address_of_others_gets_the_note(bind, alone):
-    assert _loopback(bind) is alone
+    assert loopback(bind) is alone
 

@@ -222,18 +222,10 @@ def _stage(stage, recordings: list[str], tmp: Path):
 def _note_serving(args: argparse.Namespace) -> None:
     """The notes of a server that serves: a default port in use (:func:`_choose_ports`), an address others reach."""
     sys.stderr.write("".join(getattr(args, "port_notes", [])))
-    if not _loopback(args.bind):
+    from ..recording.viewer import loopback
+
+    if not loopback(args.bind):
         sys.stderr.write(f"pcreg: note: serving on {args.bind}: whoever can reach this machine there can read what it serves\n")
-
-
-def _loopback(bind: str) -> bool:
-    """Whether ``bind`` is an address of this machine alone (127.0.0.0/8, ::1, localhost)."""
-    import ipaddress
-
-    try:
-        return bind == "localhost" or ipaddress.ip_address(bind).is_loopback
-    except ValueError:
-        return False
 
 
 def _report(args: argparse.Namespace, folders: list[str]) -> int:

@@ -6,7 +6,8 @@ the same way. A phone stores a photograph taken upright in the sensor's landscap
 a folder where some frames carry another orientation than the key frame holds frames whose pixels are turned against
 the key frame's though a viewer shows them alike, and a square frame would be labelled turned without a word. Such a
 frame is refused where it is read, with the way to turn the frames first; and a key frame whose orientation the
-labels' size cannot tell (a half turn, a mirror, a square frame) is said in a note kept in run.json (``"orientation"``).
+labels' size cannot tell (a half turn, a mirror, a square frame), or a quarter turn with labels that fit the pixels as
+stored (which a viewer or a CVAT task shows turned), is said in a note kept in run.json (``"orientation"``).
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from ..errors import InputError
 
 __all__ = ["GOES_ON", "ORIENTATION", "FolderView", "file_view"]
 
-#: The kind of note (run.json's ``"notes"``) of a key frame whose EXIF orientation its labels' size cannot tell.
+#: The kind of note (run.json's ``"notes"``) of a key frame's EXIF orientation (:meth:`FolderView.notes`).
 ORIENTATION = "orientation"
 #: What a refusal of a frame of another size adds: the frames before it are kept (a run started over puts its earlier
 #: run back instead, :mod:`pcreg.runs.earlier`, which takes these words away).
@@ -75,8 +76,8 @@ class FolderView:
         if o is None or shape is None:
             return ()
         if o >= 5 and shape[0] != shape[1]:  # labels of the size shown are refused: these were drawn on the pixels as stored
-            return ((ORIENTATION, f"{self.key}: the key frame {_said(o)}, and its labels fit the pixels as stored, which "
-                     "pcreg labels (its label PNGs and exports lie on them so): a viewer, or a CVAT task made of these "
+            return ((ORIENTATION, f"{self.key}: the first frame {_said(o)}, as every frame must, and the key labels fit "
+                     "the pixels as stored, which pcreg labels (its label PNGs and exports lie on them so): a viewer, or a CVAT task made of these "
                      f"frames, shows them turned, where those masks do not fit; to label the frames as shown, {TURN}, "
                      "and run again with --force"),)
         return ((ORIENTATION, f"{self.key}: the key frame {_said(o)}, at the size it is stored: pcreg reads "

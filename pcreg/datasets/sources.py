@@ -91,8 +91,7 @@ class Selection:
                 and (index - self.start) % self.every == 0)
 
     def to_dict(self) -> dict | None:
-        """The selection as a run's identity names it: None for every frame (a run from before the
-        options resumes as it was)."""
+        """The selection as a run's identity names it: None for every frame (a run from before the options resumes as it was)."""
         return None if self == Selection() else {"start": self.start, "stop": self.stop, "every": self.every}
 
 
@@ -303,7 +302,7 @@ class VideoFrames:
         if not container.streams.video:
             kinds = sorted({s.type for s in container.streams})
             container.close()
-            held = f"only {' and '.join(kinds)} streams: a recording of sound alone, or" if kinds else "no stream at all:"
+            held = f"only {' and '.join(kinds)} streams{': a recording of sound alone' if kinds == ['audio'] else ''}, or" if kinds else "no stream at all:"
             raise InputError(f"{self.path}: holds no video stream ({held} an empty or damaged {_CONTAINERS[fmt]} file)")
         if container.streams.video[0].codec_context is None:  # PyAV opens no decoder for a codec FFmpeg does not know
             container.close()

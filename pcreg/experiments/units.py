@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import shutil
 import sys
 from dataclasses import asdict, dataclass, field, replace
@@ -310,16 +309,24 @@ def unit_path(out: str | Path, key: str) -> Path:
     """The file of ``out/units/`` that keeps the finished unit ``key``: ``KEY.json``, or, where that is longer than a
     file's name may be (a clip's folder named near the 255 bytes a name holds), the key's first bytes and a digest of
     it all (a key's results name it inside)."""
-    name = f"{key}.json"
-    if len(os.fsencode(name)) > _LONGEST_NAME:
-        raw = os.fsencode(key)
-        name = f"{os.fsdecode(raw[:_LONGEST_NAME - 40])}-{hashlib.sha256(raw).hexdigest()[:16]}.json"
-    return Path(out) / "units" / name
+    *folders, last = f"{key}.json".split("/")
+    return Path(out, "units", *map(_fitted, folders), _fitted(last, ".json"))
 
 
-#: The longest file name a unit is kept under, in bytes: under the 255 of Linux, macOS and Windows' file systems,
-#: with room for the temporary name written first (:func:`pcreg.outputs.atomic_write_bytes`).
-_LONGEST_NAME = 200
+#: The most bytes a file's name may hold on Linux's, macOS's and Windows' file systems (a temporary name written
+#: first is cut to fit by :func:`pcreg.outputs.atomic_write_bytes`).
+_NAME_MAX = 255
+
+
+def _fitted(name: str, suffix: str = "") -> str:
+    """``name`` (ending in ``suffix``), or, past :data:`_NAME_MAX` bytes, its first characters that fit with a digest of
+    it all (the name kept before wherever that fits, so a resumed evaluation finds its units)."""
+    raw = name.encode("utf-8", "surrogateescape")
+    if len(raw) <= _NAME_MAX:
+        return name
+    digest = hashlib.sha256(raw).hexdigest()[:16]
+    head = raw[:_NAME_MAX - len(suffix.encode()) - 17].decode("utf-8", "ignore")  # no character cut in two
+    return f"{head}-{digest}{suffix}"
 
 
 def discard_units(out: str | Path, units: list) -> None:

@@ -259,6 +259,16 @@ def _stop(proc: subprocess.Popen) -> None:
         proc.stderr.close()
 
 
+def loopback(bind: str) -> bool:
+    """Whether ``bind`` is a loopback address, one this machine alone reaches (127.0.0.0/8, ::1, ::ffff:127.x.y.z,
+    localhost)."""
+    try:
+        ip = ipaddress.ip_address(bind)
+    except ValueError:
+        return bind == "localhost"
+    return ip.is_loopback or (isinstance(ip, ipaddress.IPv6Address) and ip.ipv4_mapped is not None and ip.ipv4_mapped.is_loopback)
+
+
 def check_bind(bind: str) -> str:
     """The address to probe for a server bound to ``bind`` (an IP address of this machine, or
     ``localhost``); one-line errors otherwise."""
@@ -310,7 +320,7 @@ def port_problem(host: str, port: int, bind: str | None = None) -> str | None:
         except OSError as exc:
             if exc.errno == errno.EADDRINUSE:
                 return f"the port is in use on {bind or host} (choose another, or 0 for any free port)"
-            if exc.errno == errno.EACCES:
+            if exc.errno == errno.EACCES and port < 1024 and sys.platform != "win32":
                 return ("a privileged port (below 1024 on most systems), which only root or a program with the "
                         "CAP_NET_BIND_SERVICE capability may listen on (choose one above 1023, or 0 for any free port)")
             return f"cannot listen on it on {bind or host} ({exc.strerror or exc}; choose another, or 0 for any free port)"
@@ -372,7 +382,7 @@ def serve_web(
     # a core busy for as long as it serves
     cmd = [binary, "--serve-web", "--bind", bind, "--port", str(grpc_port), "--web-viewer-port", str(web_port),
            "--server-memory-limit", server_memory(recording)]
-    if bind not in ("127.0.0.1", "::1", "localhost"):
+    if bind not in ("127.0.0.1", "::1", "localhost"):  # the page's origin, not who reaches it (:func:`loopback`)
         # the data server answers only pages from localhost unless told otherwise: allow our web viewer's
         # page under whatever name the machine is reached by
         cmd += ["--cors-allow-origin", f"http://*:{page_port or web_port}"]

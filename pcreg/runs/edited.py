@@ -155,8 +155,10 @@ def frame_moved(frames, t: int, name: str) -> bool:
 def moved_error(frames, folder: Path, t: int, name: str) -> InputError:
     """What the review says of a frame the run in ``folder`` labelled as ``name`` at position ``t`` (:func:`frame_moved`)."""
     if t >= len(frames):  # removed from the end (as the run resumed would refuse it)
-        return InputError(f"{frames.path}: holds {len(frames)} frames, the run in {folder} labelled {name} as frame {t}: "
-                          "the frames changed since the run (a frame removed)")
+        chosen = " chosen" if frames.selection.to_dict() else ""
+        return InputError(f"{frames.path}: holds {len(frames)} frames{chosen}, the run in {folder} labelled {name} as frame "
+                          f"{t}: frames were removed since the run; put them back, or label the frames again (pcreg run "
+                          "... --force)")
     return InputError(f"{frames.path}: holds {frames.name(t)} as frame {t}, which the run in {folder} labelled as "
                       f"{name}: the frames changed since the run (a frame added, removed or renamed)")
 
@@ -165,11 +167,13 @@ class FramesAsLabelled:
     """Whether the frames of a run's source are still those it labelled, step by step (:meth:`step`), then
     :meth:`check`: an :class:`~pcreg.errors.InputError` for a frame written again since (:func:`frame_changed`) at once,
     and for a frame added, removed or renamed since (:func:`frame_moved`, from ``key_frame`` at position 0 of a run from
-    one label image on) the earliest, once every step was seen. ``doing``: what the message says to label it again for
-    (``"review"``, ``"export"``). A video's frames are never said changed or moved."""
+    one label image on) the earliest, once every step was seen, or a key frame of a key-frames run (``keys``, their names)
+    gone. ``doing``: what the message says to label it again for (``"review"``, ``"export"``). A video's frames are never
+    said changed or moved."""
 
-    def __init__(self, frames, folder: Path, doing: str, key_frame: str | None = None) -> None:
+    def __init__(self, frames, folder: Path, doing: str, key_frame: str | None = None, keys=()) -> None:
         self.frames, self.folder, self.doing = frames, folder, doing
+        self.keys = tuple(map(str, keys))  # a key-frames run's key frames, which have no step
         self.moved = [(0, key_frame)] if key_frame is not None and frame_moved(frames, 0, key_frame) else []
         self.key_frame = key_frame
         self.named: dict[int, str] = {} if key_frame is None else {0: key_frame}  # each frame's name, as the run said it
@@ -185,8 +189,17 @@ class FramesAsLabelled:
             raise InputError(f"{changed}; label it again (pcreg run ... --force) to {self.doing} it")
 
     def check(self) -> None:
+        from ..datasets.sources import FolderFrames
+
         if self.moved:
             raise moved_error(self.frames, self.folder, *min(self.moved))
+        if self.keys and isinstance(self.frames, FolderFrames):
+            held = {self.frames.name(t) for t in range(len(self.frames))}
+            gone = [k for k in self.keys if k not in held]
+            if gone:
+                raise InputError(f"{self.frames.path}: no longer holds {gone[0]}, a key frame of the run in {self.folder}: "
+                                 "frames were removed since the run; put them back, or label the frames again (pcreg "
+                                 "run ... --force)")
 
 
 def check_source(state: dict, kind: str, source: Path, folder: Path) -> None:

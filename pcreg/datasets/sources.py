@@ -144,8 +144,7 @@ def _check_numbering(folder: Path, names: list[str]) -> None:
 
 
 class FolderFrames:
-    """The image files of a folder (or of its ``images/`` sub-folder) in name order, each read when the
-    stream reaches it."""
+    """The image files of a folder (or of its ``images/`` sub-folder) in name order, each read when the stream reaches it."""
 
     kind = "folder"
 

@@ -156,7 +156,7 @@ def _check_frames(folder: Path, state: dict) -> None:
         return
     frames = open_frames(source, chosen_selection(run, str(folder / STATE)))
     seen = FramesAsLabelled(frames, folder, "export", None if "stretches" in state else str(state["key_frame"]),
-                            keys=state.get("keys") or () if "stretches" in state else ())
+                            keys=(state.get("keys") or ()) if "stretches" in state else ())
     for step in counted_steps(folder, steps_counted(state), recount=lambda: steps_counted_now(folder)):
         seen.step(step)
     seen.check()

@@ -25,7 +25,9 @@ def check_recording(out: Path, identity: dict | None, record: Path) -> None:
     """An :class:`OutputError` when ``record`` is the recording of the run in ``out`` (of ``identity``; run.json
     names it) and was cut short (the run was killed before it closed it), saying the two ways on: another
     ``--record`` file resumes the labels (it holds the frames from there on), ``--force`` labels again from the
-    key frame so that one recording holds every frame. A choice the person makes: the second costs the time spent."""
+    key frame so that one recording holds every frame. A choice the person makes: the second costs the time spent.
+    So is a ``record`` there already when ``out`` holds no run yet (no run.json): it cannot be this run's recording,
+    and is refused before anything is written."""
     from ..formats import load_json_object, resolved
     from ..recording.readback import ended
 

@@ -98,7 +98,7 @@ def read_run(folder: str | Path) -> RunLabels:
 
     folder = Path(folder)
     if not folder.is_dir():
-        raise InputError(f"{folder}: not a folder")
+        raise InputError(f"{folder}: {'not a folder' if folder.exists() else 'no such folder'}")
     state = read_state(folder)
     steps_path = folder / STEPS
     try:

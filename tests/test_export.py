@@ -220,6 +220,13 @@ def test_a_step_that_names_a_frame_another_step_named_otherwise_blames_the_steps
              f"{out / 'steps.jsonl'}: frame 0 is frame_000.png in run.json (its key frame) and frame_001.png on a line")
 
 
+def test_a_run_folder_that_is_not_there_is_said_to_be_missing(tmp_path, capsys):
+    """``pcreg export MISSING`` said "MISSING: not a folder", as of a file given in its place."""
+    _refused([str(tmp_path / "missing")], capsys, f"{tmp_path / 'missing'}: no such folder")
+    (tmp_path / "file").write_text("x")
+    _refused([str(tmp_path / "file")], capsys, f"{tmp_path / 'file'}: not a folder")
+
+
 def _refused(args, capsys, *said):
     try:
         code = main(["export", *args])

@@ -76,6 +76,7 @@ from .._calls import OneStream, one_caller
 from ..errors import InputError
 from ..frame import PreparedFrame
 from .bars import Bars, kept_between
+from .follow_colours import BINS, CLIP, _colour_index, _colour_table, _histogram
 from .working import WorkingSize
 
 if TYPE_CHECKING:
@@ -90,8 +91,6 @@ __all__ = ["ObjectFollower", "FollowCarry", "FollowTerms", "SCALE", "CARRY_WEIGH
 SCALE = 0.5
 #: DIS's preset of both flows (fast: J 0.735 / F 0.628 in about half the time, with residual 60 and blur 2).
 FLOW_PRESET = "medium"
-#: Every log-odds term is clipped to +-CLIP.
-CLIP = 4.0
 # Chosen on the five shared DAVIS sequences leaving one out, on the other four's mean J + F (carry {0.5, 0.7} x key {1, 1.5}
 # x residual {40, 60} x blur {1, 2, 3, 4} x NEAR {none, 8, 16, 32, 64}): four folds chose these, breakdance's blur 3.
 #: Weight of the previous frame's labels carried (chosen leaving one sequence out).
@@ -114,9 +113,6 @@ GATE_POWER = 2.0
 #: The labels at the frames' size keep their largest component and those within this many px of it: far-off blobs of
 #: the object's colours (a red shirt beside a red dancer, a grey monument above a grey car) go (chosen leaving one out).
 NEAR = 32.0
-#: Bins of each of Y, Cr and Cb in the key frame's colour histograms.
-BINS = 16
-_BIN_BITS = BINS.bit_length() - 1  # a channel's bin is its top _BIN_BITS bits (BINS a power of 2)
 #: The confidence of a label, ``sigmoid(CONFIDENCE_SLOPE * |L| + CONFIDENCE_OFFSET)`` of the fused
 #: log-odds ``L`` at the frame's size: a logistic regression fitted on every pixel of the scored frames of
 #: DAVIS 2016's train set (tools/fit_follow_confidence.py). Scored on val's 20, never fitted on, the expected
@@ -177,11 +173,6 @@ class FollowCarry:
                              "with its colour histogram")
 
 
-def _histogram(index: np.ndarray) -> np.ndarray:
-    """(BINS^3,) float32: the share of the pixels in each colour bin (``index`` from :func:`_colour_index`)."""
-    return (np.bincount(index.ravel(), minlength=BINS ** 3) / index.size).astype(np.float32)
-
-
 def _chance_residual(a: np.ndarray, b: np.ndarray) -> float:
     """The mean |difference| of a pixel of grey image ``a`` and an unrelated pixel of ``b`` (their
     histograms' independent draws): what a motion that explains nothing leaves."""
@@ -223,44 +214,6 @@ def cut_evidence(grey: np.ndarray, colours: np.ndarray, reference_grey: np.ndarr
 
 def _logit(p: np.ndarray, eps: float) -> np.ndarray:
     return np.clip(np.log((p + eps) / (1 - p + eps)), -CLIP, CLIP).astype(np.float32)
-
-
-def _blur_bins(h: np.ndarray) -> np.ndarray:
-    """A 3-D histogram blurred once by [1 2 1] / 4 along each axis (no wrap at its ends)."""
-    for ax in range(3):
-        b = h * 2
-        lo, hi = [slice(None)] * 3, [slice(None)] * 3
-        lo[ax], hi[ax] = slice(0, -1), slice(1, None)
-        b[tuple(hi)] += h[tuple(lo)]
-        b[tuple(lo)] += h[tuple(hi)]
-        h = b * 0.25
-    return h
-
-
-def _colour_index(rgb: np.ndarray) -> np.ndarray:
-    """Each pixel's bin of the YCrCb histogram, (H, W) uint16: ``(Y >> s) * BINS^2 + (Cr >> s) * BINS +
-    (Cb >> s)``, s = 8 - log2(BINS) (uint16 shifts: about 1 ms at 854x480, against 35 ms in int32
-    arithmetic, measured in one process)."""
-    c = cv2.cvtColor(rgb, cv2.COLOR_RGB2YCrCb) >> (8 - _BIN_BITS)
-    c = c.astype(np.uint16)
-    return (c[..., 0] << (2 * _BIN_BITS)) | (c[..., 1] << _BIN_BITS) | c[..., 2]
-
-
-def _colour_table(rgb: np.ndarray, share: np.ndarray, known: np.ndarray) -> np.ndarray:
-    """(BINS^3,) float32: log p(colour | object) - log p(colour | background) of the key frame's known
-    pixels (``share`` > 0.5 the object), each histogram blurred and normalised, clipped to +-CLIP. The
-    pseudo-counts (0.002 a bin in all) are shared in proportion to the classes' pixels, so a colour neither
-    histogram holds has a log-odds of 0: with the same pseudo-count for each, it leaned towards the smaller class."""
-    idx = _colour_index(rgb).ravel()
-    n = BINS ** 3
-    k = known.ravel()
-    fg, bg = ((share.ravel() > 0.5) & k).astype(np.float64), ((share.ravel() <= 0.5) & k).astype(np.float64)
-    h1 = _blur_bins(np.bincount(idx, fg, n).reshape((BINS,) * 3)).ravel()
-    h0 = _blur_bins(np.bincount(idx, bg, n).reshape((BINS,) * 3)).ravel()
-    n1, n0 = h1.sum(), h0.sum()
-    a1, a0 = 2e-3 * n1 / (n1 + n0), 2e-3 * n0 / (n1 + n0)
-    p1, p0 = (h1 + a1) / (n1 + a1 * n), (h0 + a0) / (n0 + a0 * n)
-    return np.clip(np.log(p1) - np.log(p0), -CLIP, CLIP).astype(np.float32)
 
 
 @dataclass(frozen=True, eq=False)

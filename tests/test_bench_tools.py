@@ -289,3 +289,45 @@ def test_resize_clips_keeps_the_layout_and_the_class_ids(tmp_path):
     assert up_image.shape == (72, 96, 3) and up_labels.shape == (72, 96) and down_labels.shape == (18, 24)
     assert set(np.unique(up_labels)) == {0, 3, 7} and set(np.unique(down_labels)) <= {0, 3, 7}  # ids, not blends
     assert np.array_equal(up_labels[::2, ::2], labels)  # nearest: each label doubled
+
+
+@pytest.mark.slow
+def test_fit_follow_confidence_fits_each_sequence_left_out_and_reads_its_samples_back(tmp_path, monkeypatch, capsys,
+                                                                                        shared_data):
+    """Three shared DAVIS sequences cut to 12 frames: the five features and |L| alone are each fitted with one
+    sequence left out and on all; the samples kept by ``--samples`` are read back by a later run of the same
+    ``--data`` (the follower not run again); ``--score`` refuses a sequence that ``--data`` fits on, and labels all
+    right (nothing to fit) are refused."""
+    import shutil
+
+    from _davis import frames_and_masks, write_pcreg_layout
+
+    tool = _load("fit_follow_confidence")
+    data = tmp_path / "data"
+    for name in ("blackswan", "breakdance", "goat"):
+        for part in ("images", "labels"):
+            (data / name / part).mkdir(parents=True)
+            for f in sorted((shared_data / "davis" / name / part).iterdir())[:12]:
+                shutil.copy(f, data / name / part / f.name)
+    samples, out = tmp_path / "samples.npz", tmp_path / "fit.json"
+    monkeypatch.setattr(sys, "argv", ["fit", "--data", str(data), "--samples", str(samples), "--out", str(out)])
+    assert tool.main() == 0
+    result = json.loads(out.read_text())
+    assert [f["left_out"] for f in result["features"]["folds"]] == ["blackswan", "breakdance", "goat"]
+    assert len(result["features"]["shipped"]["w"]) == 5 and len(result["alone"]["shipped"]["w"]) == 1
+    assert 0 < result["features"]["pooled_left_out"]["error"] < 10 and 0 <= result["features"]["pooled_left_out"]["ece"] < 0.2
+    with monkeypatch.context() as m:
+        m.setattr(tool, "record", lambda frames: pytest.fail("the kept samples were not read back"))
+        assert tool.main() == 0
+    assert json.loads(out.read_text()) == result
+    monkeypatch.setattr(sys, "argv", ["fit", "--data", str(data), "--score", str(data)])
+    with pytest.raises(SystemExit):
+        tool.main()
+    assert "holds sequences --data fits on" in capsys.readouterr().err
+    easy = tmp_path / "easy"
+    for i in range(2):
+        write_pcreg_layout(easy / f"seq{i}", frames_and_masks(4, shape=(96, 128), seed=i))
+    monkeypatch.setattr(sys, "argv", ["fit", "--data", str(easy)])
+    with pytest.raises(SystemExit):
+        tool.main()
+    assert "labels both right and wrong" in capsys.readouterr().err

@@ -321,3 +321,19 @@ def test_a_resumed_evaluation_runs_again_a_clip_whose_follower_counts_an_earlier
     unit.write_text(json.dumps(kept))
     assert main(args) == 0
     assert json.loads((out / "results.json").read_text())["calibration"]["pixels"] > 0
+
+
+def test_a_resumed_evaluation_runs_again_a_clip_counted_with_the_confidence_of_the_magnitude_alone(tmp_path):
+    """A clip kept by the version whose follower's confidence was ``sigmoid(1.084 |L| + 0.132)`` (its stamp
+    ``["pcreg_object", 1.084, 0.132]``) is counted again with the confidence of now, not read back."""
+    seq = write_pcreg_layout(tmp_path / "seq", frames_and_masks(6, shape=(96, 128)))
+    out = tmp_path / "out"
+    args = ["evaluate", "stream", "--data", f"davis:{seq}", "--methods", "pcreg_object", "--out", str(out)]
+    assert main(args) == 0
+    unit = out / "units" / "seq_reference.json"
+    kept = json.loads(unit.read_text())
+    counted = kept["calibration"]
+    kept["calibrated"], kept["calibration"] = ["pcreg_object", 1.084, 0.132], np.zeros_like(np.array(counted)).tolist()
+    unit.write_text(json.dumps(kept))
+    assert main(args) == 0
+    assert json.loads(unit.read_text())["calibration"] == counted

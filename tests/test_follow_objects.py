@@ -206,9 +206,10 @@ def test_the_labels_are_the_sign_of_the_full_size_log_odds():
     assert f.log_odds is None
     labels = f.step(pairs[1][0])
     assert f.log_odds.shape == labels.shape and np.array_equal(labels == 1, f.log_odds > 0)
-    from pcreg.pipeline.follow import CONFIDENCE_OFFSET, CONFIDENCE_SLOPE
-    want = 1 / (1 + np.exp(-(CONFIDENCE_SLOPE * np.abs(f.log_odds) + CONFIDENCE_OFFSET)))
-    np.testing.assert_allclose(f.last.confidence, want, rtol=1e-5)
+    from pcreg.pipeline.follow import CONFIDENCE_INTERCEPT, CONFIDENCE_WEIGHTS
+    from pcreg.pipeline.follow_confidence import confidence_features
+    z = np.tensordot(np.asarray(CONFIDENCE_WEIGHTS), confidence_features(f.log_odds, labels), axes=1) + CONFIDENCE_INTERCEPT
+    np.testing.assert_allclose(f.last.confidence, 1 / (1 + np.exp(-z)), rtol=1e-5)
 
 
 def test_a_run_following_an_object_predicts_its_iou_and_scores_it_against_the_truth(tmp_path, capsys):

@@ -2,21 +2,26 @@
 
     python tools/fit_follow_confidence.py --data DAVIS:train --score DAVIS:val
 
-The follower (:class:`pcreg.pipeline.follow.ObjectFollower`, ``pcreg run --follow object``) gives each
-label the confidence ``sigmoid(a * |L| + b)`` of its fused log-odds ``L`` at the frame's size (its
-``log_odds``). For each sequence, ``a`` and ``b`` are fitted (a logistic regression of "the label is right" on ``|L|``, every pixel
-of the scored frames 1 to n-2) on the other sequences, and the sequence left out is scored by its expected
-calibration error (:func:`pcreg.experiments.stream_methods.calibration`); the pooled row scores every
-pixel with the fit that left its sequence out. The coefficients fitted on every sequence are the ones to
-ship (:data:`pcreg.pipeline.follow.CONFIDENCE_SLOPE`, :data:`~pcreg.pipeline.follow.CONFIDENCE_OFFSET`).
-The follower's labels do not depend on them, so each sequence runs once.
+The follower (:class:`pcreg.pipeline.follow.ObjectFollower`, ``pcreg run --follow object``) gives each label the
+confidence ``sigmoid(w . f + b)`` of five features ``f`` of its pixel
+(:func:`pcreg.pipeline.follow_confidence.confidence_features`: the fused log-odds' magnitude ``|L|``, the distance to
+the labels' edge, the object's share of the frame, and products of those with ``|L|``). The follower is run over each
+sequence once (its labels do not depend on the confidence), and a sample of the pixels of its scored frames (1 to n-2)
+is kept: every :data:`SAMPLE`-th pixel of every :data:`SAMPLE`-th row, the grid shifted by one pixel and one row each
+frame. For each sequence, ``w`` and ``b`` are fitted (scikit-learn's logistic regression of "the label is right" on
+the features) on the other sequences' samples, and the sequence left out is scored on its own sample by its expected
+calibration error and the error rate of its most confident 80%
+(:func:`pcreg.experiments.stream_methods.calibration`); the pooled row scores every sample with the fit that left its
+sequence out. The row "|L| alone" does the same with the first feature alone, the confidence before the features. The
+weights fitted on every sequence are the ones to ship
+(:data:`~pcreg.pipeline.follow_confidence.CONFIDENCE_WEIGHTS`, :data:`~pcreg.pipeline.follow_confidence.CONFIDENCE_INTERCEPT`).
 
 ``--data`` and ``--score`` take what ``--data davis:`` does: a folder of sequences, or an official DAVIS root
 with ``:train``, ``:val`` or ``:all`` (its ``ImageSets`` lists; val by default). ``--score``: sequences never
-fitted on (DAVIS 2016's val set, where ``--data`` is its train set), each scored by the coefficients fitted on
-every sequence of ``--data``, and pooled; a sequence in both is refused. ``--data`` defaults to the shared five,
-which alone are too easy to fit on: fitted on them, the confidence predicted 3.13% error where val's 20 made
-5.77%, every pixel pooled (docs/results.md, "The confidence").
+fitted on (DAVIS 2016's val set, where ``--data`` is its train set), each scored by the weights fitted on every
+sequence of ``--data``, and pooled; a sequence in both is refused. ``--data`` defaults to the shared five, which
+alone are too easy to fit on (docs/results.md, "The confidence"). ``--samples FILE.npz`` keeps the samples of
+``--data`` and reads them back in a later run with the same ``--data``.
 """
 
 from __future__ import annotations
@@ -31,76 +36,72 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import benchlib  # noqa: E402, F401  (puts the checkout on the path)
 
-#: |L| is kept in bins of this width (its largest value is 8: three terms clipped to +-4, weights 0.5, 0.5, 1).
-STEP = 0.01
-N_BINS = 1000
+#: The sample's stride, in pixels and rows.
+SAMPLE = 18
+#: The regression's inverse regularisation: large, a plain maximum-likelihood fit on millions of samples.
+C = 1e4
 
 
-def record(frames) -> np.ndarray:
-    """(2, N_BINS) counts of right (row 0) and wrong (row 1) labels per bin of |L| on the scored frames."""
+def record(frames) -> tuple[np.ndarray, np.ndarray]:
+    """``(features, right)``: (n, 5) float32 features and (n,) bool "the label is right" of the sampled pixels of the
+    scored frames."""
     from pcreg.classification.davis_measures import scored_frames
     from pcreg.pipeline.follow import ObjectFollower
+    from pcreg.pipeline.follow_confidence import confidence_features
 
     follower = ObjectFollower.from_key_frame(frames[0].image, frames[0].labels)
     scored = set(scored_frames(len(frames)))
-    counts = np.zeros((2, N_BINS), np.int64)
+    features, right = [], []
     for t in range(1, len(frames)):
         labels = follower.step(frames[t].image)
         if t not in scored:
             continue
         assert follower.log_odds is not None
-        magnitude = np.abs(follower.log_odds)
-        b = np.minimum((magnitude / STEP).astype(np.intp), N_BINS - 1).ravel()
-        wrong = ((labels == 1) != (frames[t].labels == 1)).ravel()
-        counts[0] += np.bincount(b[~wrong], minlength=N_BINS)
-        counts[1] += np.bincount(b[wrong], minlength=N_BINS)
-    return counts
+        at = (slice(t % SAMPLE, None, SAMPLE), slice(t % SAMPLE, None, SAMPLE))
+        features.append(confidence_features(follower.log_odds, labels)[(slice(None), *at)].reshape(5, -1).T)
+        right.append(((labels == 1) == (frames[t].labels == 1))[at].ravel())
+    if not features:
+        return np.zeros((0, 5), np.float32), np.zeros(0, bool)
+    return np.concatenate(features), np.concatenate(right)
 
 
-def fit(counts: np.ndarray) -> tuple[float, float]:
-    """``(a, b)`` of the logistic regression of "right" on |L| (bin centres, weighted by the counts; Newton)."""
-    x = (np.arange(N_BINS) + 0.5) * STEP
-    right, n = counts[0].astype(np.float64), counts.sum(axis=0).astype(np.float64)
-    keep = n > 0
-    x, right, n = x[keep], right[keep], n[keep]
-    w = np.zeros(2)
-    X = np.stack([x, np.ones_like(x)], axis=1)
-    for _ in range(50):
-        p = 1.0 / (1.0 + np.exp(-(X @ w)))
-        grad = X.T @ (right - n * p)
-        hess = (X * (n * p * (1 - p))[:, None]).T @ X + 1e-9 * np.eye(2)
-        delta = np.linalg.solve(hess, grad)
-        w += delta
-        if np.abs(delta).max() < 1e-10:
-            break
-    return float(w[0]), float(w[1])
+def fit(features: np.ndarray, right: np.ndarray) -> tuple[list[float], float]:
+    """``(w, b)`` of the logistic regression of ``right`` on ``features`` (Newton's method: it converges to the
+    maximum on five features where L-BFGS, stopped by its tolerance, left a third of the folds elsewhere)."""
+    from sklearn.linear_model import LogisticRegression
+
+    model = LogisticRegression(C=C, solver="newton-cholesky").fit(features.astype(np.float64), right)
+    return [float(v) for v in model.coef_[0]], float(model.intercept_[0])
 
 
-def scored(counts: np.ndarray, a: float, b: float) -> np.ndarray:
-    """(2, 256) counts at each 8-bit level of the confidence ``sigmoid(a |L| + b)`` (for calibration)."""
+def scored(features: np.ndarray, right: np.ndarray, w, b: float) -> np.ndarray:
+    """(2, 256) counts of right (row 0) and wrong (row 1) samples at each 8-bit level of ``sigmoid(w . f + b)``."""
     from pcreg.experiments.stream_methods import CONFIDENCE_LEVELS
 
-    x = (np.arange(N_BINS) + 0.5) * STEP
-    level = np.rint((CONFIDENCE_LEVELS - 1) / (1.0 + np.exp(-(a * x + b)))).astype(np.intp)
-    return np.stack([np.bincount(level, weights=counts[k], minlength=CONFIDENCE_LEVELS) for k in (0, 1)])
+    confidence = 1.0 / (1.0 + np.exp(-(features.astype(np.float64) @ np.asarray(w) + b)))
+    level = np.rint((CONFIDENCE_LEVELS - 1) * confidence).astype(np.intp)
+    return np.stack([np.bincount(level[right], minlength=CONFIDENCE_LEVELS),
+                     np.bincount(level[~right], minlength=CONFIDENCE_LEVELS)])
 
 
-def score_on(path: str, a: float, b: float) -> dict:
-    """Each sequence at ``path`` and all of them pooled, scored by ``sigmoid(a |L| + b)``: printed, and returned."""
+def _row(counts: np.ndarray) -> dict:
     from pcreg.experiments.stream_methods import calibration
 
-    keys = ("ece", "error", "error_top80")
-    rows, pooled = {}, np.zeros((2, 256))
-    print("\n| scored, never fitted on | ECE | error % | predicted error % | error % of the 80% most confident |")
-    print("|---|---|---|---|---|")
-    for name, frames in _load(path).items():
-        counts = scored(record(frames), a, b)
-        pooled += counts
-        rows[name] = {k: calibration(counts)[k] for k in keys} | {"predicted": _predicted(counts)}
-    rows["pooled"] = {k: calibration(pooled)[k] for k in keys} | {"predicted": _predicted(pooled)}
-    for name, r in rows.items():
-        print(f"| {name} | {r['ece']:.4f} | {r['error']:.2f} | {r['predicted']:.2f} | {r['error_top80']:.2f} |")
-    return rows
+    cal = calibration(counts)
+    return {"ece": cal["ece"], "error": cal["error"], "error_top80": cal["error_top80"],
+            "top80_share": cal["error_top80"] / cal["error"] if cal["error"] else 0.0}
+
+
+def left_out(samples: dict, columns: list[int]) -> tuple[list[dict], dict]:
+    """Each sequence scored by the fit on the others (the features ``columns``), and every sample pooled."""
+    rows, pooled = [], 0
+    for name, (x, y) in samples.items():
+        rest = [v for n, v in samples.items() if n != name]
+        w, b = fit(np.concatenate([v[0] for v in rest])[:, columns], np.concatenate([v[1] for v in rest]))
+        counts = scored(x[:, columns], y, w, b)
+        pooled = pooled + counts
+        rows.append({"left_out": name, "w": w, "b": b, **_row(counts)})
+    return rows, _row(pooled)
 
 
 def _load(arg: str) -> dict:
@@ -112,49 +113,62 @@ def _load(arg: str) -> dict:
     return load_davis(path, split=split)
 
 
-def _predicted(counts: np.ndarray) -> float:
-    """The predicted error % of :func:`scored` counts: the mean of 1 - confidence over their pixels."""
-    from pcreg.experiments.stream_methods import CONFIDENCE_LEVELS
+def _samples(arg: str, keep: str | None) -> dict:
+    """``{sequence: (features, right)}`` of ``arg``, read from ``keep`` where it holds them."""
+    if keep and Path(keep).is_file():
+        with np.load(keep) as z:
+            if str(z["data"]) == arg:
+                names = [str(n) for n in z["names"]]
+                return {n: (z[f"x_{i}"], z[f"y_{i}"]) for i, n in enumerate(names)}
+    from tqdm import tqdm
 
-    level = np.arange(CONFIDENCE_LEVELS) / (CONFIDENCE_LEVELS - 1)
-    n = counts.sum(axis=0)
-    return float(100.0 * ((1.0 - level) * n).sum() / n.sum())
+    data = _load(arg)
+    samples = {name: record(frames) for name, frames in tqdm(data.items(), desc="sequences", unit="seq")}
+    if keep:
+        arrays = {f"x_{i}": v[0] for i, v in enumerate(samples.values())} | {f"y_{i}": v[1] for i, v in enumerate(samples.values())}
+        np.savez(keep, data=arg, names=np.array(list(samples)), **arrays)
+    return samples
+
+
+def _table(title: str, rows: list[dict], pooled: dict) -> None:
+    print(f"\n{title}\n\n| left out | ECE | error % | error % of the 80% most confident | its share |")
+    print("|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['left_out']} | {r['ece']:.4f} | {r['error']:.2f} | {r['error_top80']:.2f} | {r['top80_share']:.3f} |")
+    print(f"| **pooled** | **{pooled['ece']:.4f}** | {pooled['error']:.2f} | {pooled['error_top80']:.2f} | "
+          f"**{pooled['top80_share']:.3f}** |")
 
 
 def main() -> int:
-    from pcreg.experiments.stream_methods import calibration
-
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--data", default=str(benchlib.SHARED_DATA / "davis"), help="DAVIS sequences")
+    p.add_argument("--data", default=str(benchlib.SHARED_DATA / "davis"), help="DAVIS sequences to fit on")
     p.add_argument("--score", default=None, help="DAVIS sequences to score the fit on, never fitted on")
-    p.add_argument("--out", default=None, help="write the table as JSON here")
+    p.add_argument("--samples", default=None, help="keep the samples of --data in this .npz, and read them back")
+    p.add_argument("--out", default=None, help="write the tables as JSON here")
     args = p.parse_args()
-    data = _load(args.data)
-    both = sorted(set(data) & set(_load(args.score))) if args.score else []
+    both = sorted(set(_load(args.data)) & set(_load(args.score))) if args.score else []
     if both:
         p.error(f"--score {args.score} holds sequences --data fits on: {', '.join(both)}")
-    counts = {name: record(frames) for name, frames in data.items()}
-    rows, pooled = [], np.zeros((2, 256))
-    for name in counts:
-        a, b = fit(sum(c for n, c in counts.items() if n != name))
-        left = scored(counts[name], a, b)
-        pooled += left
-        cal = calibration(left)
-        rows.append({"left_out": name, "a": a, "b": b, "ece": cal["ece"], "error": cal["error"],
-                     "error_top80": cal["error_top80"]})
-    all_a, all_b = fit(sum(counts.values()))
-    result = {"folds": rows, "pooled_left_out": {k: calibration(pooled)[k] for k in ("ece", "error", "error_top80")},
-              "shipped": {"a": all_a, "b": all_b},
-              "in_sample": {k: calibration(scored(sum(counts.values()), all_a, all_b))[k] for k in ("ece", "error")}}
-    print("| left out | a | b | ECE left out | error % | error % of the 80% most confident |")
-    print("|---|---|---|---|---|---|")
-    for r in rows:
-        print(f"| {r['left_out']} | {r['a']:.3f} | {r['b']:.3f} | {r['ece']:.4f} | {r['error']:.2f} | {r['error_top80']:.2f} |")
-    pl = result["pooled_left_out"]
-    print(f"| **pooled** | | | **{pl['ece']:.4f}** | {pl['error']:.2f} | {pl['error_top80']:.2f} |")
-    print(f"shipped (every sequence of --data): a {all_a:.4f} b {all_b:.4f}; in-sample ECE {result['in_sample']['ece']:.4f}")
+    samples = _samples(args.data, args.samples)
+    if len(samples) < 2 or len({bool(v) for _, y in samples.values() for v in np.unique(y)}) < 2:
+        p.error(f"--data {args.data}: a fit with one sequence left out needs two sequences or more, and labels both "
+                "right and wrong among their samples")
+    result = {}
+    for key, columns in (("alone", [0]), ("features", [0, 1, 2, 3, 4])):
+        rows, pooled = left_out(samples, columns)
+        _table("|L| alone" if key == "alone" else "the five features", rows, pooled)
+        w, b = fit(np.concatenate([v[0] for v in samples.values()])[:, columns],
+                   np.concatenate([v[1] for v in samples.values()]))
+        result[key] = {"folds": rows, "pooled_left_out": pooled, "shipped": {"w": w, "b": b}}
+        print(f"fitted on every sequence of --data: w {', '.join(f'{v:.3f}' for v in w)}, b {b:.3f}")
     if args.score:
-        result["scored"] = score_on(args.score, all_a, all_b)
+        scores = _samples(args.score, None)
+        for key, columns in (("alone", [0]), ("features", [0, 1, 2, 3, 4])):
+            fitted = result[key]["shipped"]
+            rows = [{"left_out": n, **_row(scored(x[:, columns], y, fitted["w"], fitted["b"]))} for n, (x, y) in scores.items()]
+            pooled = _row(sum(scored(x[:, columns], y, fitted["w"], fitted["b"]) for x, y in scores.values()))
+            _table(f"scored, never fitted on ({'|L| alone' if key == 'alone' else 'the five features'})", rows, pooled)
+            result[key]["scored"] = {"rows": rows, "pooled": pooled}
     if args.out:
         Path(args.out).write_text(json.dumps(result, indent=2))
     return 0

@@ -51,13 +51,14 @@ def confidence_method(methods) -> str | None:
 
 def calibration_stamp(methods) -> list | None:
     """What a clip's kept calibration counts must have been made with, for them to be read again (``pcreg evaluate
-    stream`` resumed): ``[pcreg_object, slope, offset]`` where the follower's confidence is the one calibrated (its
-    coefficients, which no option sets, may change between versions); None otherwise (nothing to check)."""
+    stream`` resumed): ``[pcreg_object, slope, offset, *weights, intercept]`` where the follower's confidence is the
+    one calibrated (its coefficients, which no option sets, may change between versions); None otherwise (nothing to
+    check)."""
     if confidence_method(methods) != OBJECT_METHOD:
         return None
-    from ..pipeline.follow import CONFIDENCE_OFFSET, CONFIDENCE_SLOPE
+    from ..pipeline.follow_confidence import CONFIDENCE_INTERCEPT, CONFIDENCE_OFFSET, CONFIDENCE_SLOPE, CONFIDENCE_WEIGHTS
 
-    return [OBJECT_METHOD, CONFIDENCE_SLOPE, CONFIDENCE_OFFSET]
+    return [OBJECT_METHOD, CONFIDENCE_SLOPE, CONFIDENCE_OFFSET, *CONFIDENCE_WEIGHTS, CONFIDENCE_INTERCEPT]
 
 
 #: Levels of the confidence histograms (:func:`calibration_counts`): the 8-bit steps of a confidence PNG.

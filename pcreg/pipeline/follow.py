@@ -32,7 +32,8 @@ blurs away (a kite's bar, a hand) keep their colour's say; then only the largest
 within :data:`NEAR` px of it are kept, which drops far-off blobs of the object's colours, and those on a part of
 the key frame's object that lies farther than that from its largest, carried by the key flow (a part drawn
 there is the object's, however far; :func:`_far_parts`). Its confidence
-is a logistic of the sum's magnitude (:data:`CONFIDENCE_SLOPE`, :data:`CONFIDENCE_OFFSET`); once the
+is a logistic regression over the sum's magnitude, the distance to the labels' edge and the object's share of the
+frame (:mod:`~pcreg.pipeline.follow_confidence`); once the
 labels hold no object (it left the frame), the colour term's alone, since the carried 'nowhere' saw nothing
 (an object that left the frame is not searched for again; the five DAVIS sequences never lose theirs).
 
@@ -77,14 +78,16 @@ from ..errors import InputError
 from ..frame import PreparedFrame
 from .bars import Bars, kept_between
 from .follow_colours import BINS, CLIP, _colour_index, _colour_table, _histogram
+from .follow_confidence import (CONFIDENCE_INTERCEPT, CONFIDENCE_OFFSET, CONFIDENCE_SLOPE, CONFIDENCE_WEIGHTS,
+                                colour_confidence, follow_confidence)
 from .working import WorkingSize
 
 if TYPE_CHECKING:
     from .report import StepReport
 
 __all__ = ["ObjectFollower", "FollowCarry", "FollowTerms", "SCALE", "CARRY_WEIGHT", "COLOUR_WEIGHT", "KEY_WEIGHT", "RESIDUAL_SIGMA",
-           "CARRY_BLUR", "GATE_POWER", "LOST_SHARE", "NEAR", "FAR_PART_SHARE", "CONFIDENCE_SLOPE", "CONFIDENCE_OFFSET",
-           "FLOW_PRESET", "CUT_RESIDUAL", "CUT_COLOUR_CHANGE", "can_follow", "colour_change", "cut_evidence", "frame_colours"]
+           "CARRY_BLUR", "GATE_POWER", "LOST_SHARE", "NEAR", "FAR_PART_SHARE", "CONFIDENCE_WEIGHTS", "CONFIDENCE_INTERCEPT",
+           "CONFIDENCE_SLOPE", "CONFIDENCE_OFFSET", "FLOW_PRESET", "CUT_RESIDUAL", "CUT_COLOUR_CHANGE", "can_follow", "colour_change", "cut_evidence", "frame_colours"]
 
 #: The working size, a share of the frames' sides (427x240 for 854x480): DIS at full size carried the
 #: true mask one step only 0.008-0.023 IoU better, in four times the time.
@@ -113,12 +116,6 @@ GATE_POWER = 2.0
 #: The labels at the frames' size keep their largest component and those within this many px of it: far-off blobs of
 #: the object's colours (a red shirt beside a red dancer, a grey monument above a grey car) go (chosen leaving one out).
 NEAR = 32.0
-#: The confidence of a label, ``sigmoid(CONFIDENCE_SLOPE * |L| + CONFIDENCE_OFFSET)`` of the fused
-#: log-odds ``L`` at the frame's size: a logistic regression fitted on every pixel of the scored frames of
-#: DAVIS 2016's train set (tools/fit_follow_confidence.py). Scored on val's 20, never fitted on, the expected
-#: calibration error pooled is 0.0026 and the predicted error 5.73% against 5.88% (docs/results.md, "The confidence").
-CONFIDENCE_SLOPE = 1.084
-CONFIDENCE_OFFSET = 0.132
 # A scene cut (:func:`cut_evidence`) is both of the two below. Measured at the working size on every pair of
 # consecutive frames of the five shared DAVIS sequences and the eight shared CamVid clips (566 pairs) and on
 # 148 cuts built from them (the last frame of one clip, the first of another of a different place;
@@ -269,33 +266,24 @@ def _far_parts(labels: np.ndarray, size: WorkingSize) -> np.ndarray | None:
     return _object_share(np.where(far > 0, 1, np.where(labels == 2, 2, 0)).astype(np.uint8), size)[1]
 
 
-def _sure(log_odds: np.ndarray) -> np.ndarray:
-    """The confidence of the label ``log_odds``'s sign: ``sigmoid(CONFIDENCE_SLOPE * |L| + CONFIDENCE_OFFSET)``."""
-    return 1.0 / (1.0 + np.exp(-(CONFIDENCE_SLOPE * np.abs(log_odds) + CONFIDENCE_OFFSET)))
-
-
 def _read(prior: np.ndarray, colour: np.ndarray, size: WorkingSize, *,
           lost: bool = False, parts: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(labels, confidence, log_odds)`` at the frames' size from the carried terms ``prior`` (h, w) at the
     working size and the colour term ``colour`` (H, W) at the frames' size: ``L`` = the carried terms
     brought to the frames' size bilinearly plus the colour term; the labels are its sign, less the
     components farther than :data:`NEAR` px from the largest (their ``L`` negated); the confidence is
-    ``sigmoid(CONFIDENCE_SLOPE * |L| + CONFIDENCE_OFFSET)``.
+    :func:`~pcreg.pipeline.follow_confidence.follow_confidence` of ``L`` and the labels.
 
     ``lost``: the previous labels held no object, so the carried terms say 'nowhere' without having seen
     it (it left the frame, or was lost, and may come back): the labels are still ``L``'s sign, but their
-    confidence is the colour term's alone, ``1 -`` its confidence where the colours say the other label."""
+    confidence is the colour term's alone (:func:`~pcreg.pipeline.follow_confidence.colour_confidence`)."""
     full = size.grow(prior) + colour
     positive = (full > 0).astype(np.uint8)
     carried = None if parts is None else size.grow(parts.astype(np.float32)) > 0.5
     labels = _near_largest(positive, NEAR, carried)
     full = np.where(labels < positive, -full, full)
-    if lost:
-        agree = (colour > 0) == (labels == 1)
-        confidence = np.where(agree, _sure(colour), 1.0 - _sure(colour))
-    else:
-        confidence = _sure(full)
-    return labels, confidence.astype(np.float32), full
+    confidence = colour_confidence(colour, labels) if lost else follow_confidence(full, labels)
+    return labels, confidence, full
 
 
 def _object_share(labels: np.ndarray, size: WorkingSize) -> tuple[np.ndarray, np.ndarray]:

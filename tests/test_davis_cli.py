@@ -306,9 +306,12 @@ def test_the_calibration_table_is_of_the_follower_when_it_runs_without_pcreg(tmp
     assert "confidence" not in (tmp_path / "plain" / "checks.md").read_text()
 
 
-def test_a_resumed_evaluation_runs_again_a_clip_whose_follower_counts_an_earlier_version_kept(tmp_path):
-    """A clip kept by a version that counted no confidence of the follower (or counted it by other coefficients) was
-    read back as it was: the resumed run's calibration table held 0 pixels under the follower's name."""
+@pytest.mark.parametrize("stamp", [None, ["pcreg_object", 1.084, 0.132]], ids=["no stamp", "the magnitude alone"])
+def test_a_resumed_evaluation_runs_again_a_clip_whose_follower_counts_an_earlier_version_kept(tmp_path, stamp):
+    """A clip kept by a version that counted no confidence of the follower (no stamp) was read back as it was: the
+    resumed run's calibration table held 0 pixels under the follower's name. One counted by other coefficients (the
+    confidence ``sigmoid(1.084 |L| + 0.132)`` of |L| alone, its stamp ``["pcreg_object", 1.084, 0.132]``) is counted
+    again with the confidence of now, not read back."""
     seq = write_pcreg_layout(tmp_path / "seq", frames_and_masks(6, shape=(96, 128)))
     out = tmp_path / "out"
     args = ["evaluate", "stream", "--data", f"davis:{seq}", "--methods", "plain,pcreg_object", "--out", str(out)]
@@ -316,24 +319,12 @@ def test_a_resumed_evaluation_runs_again_a_clip_whose_follower_counts_an_earlier
     unit = out / "units" / "seq_reference.json"
     kept = json.loads(unit.read_text())
     assert kept["calibrated"][0] == "pcreg_object"
+    counted = kept["calibration"]
     del kept["calibrated"]
-    kept["calibration"] = np.zeros_like(np.array(kept["calibration"])).tolist()
+    if stamp is not None:
+        kept["calibrated"] = stamp
+    kept["calibration"] = np.zeros_like(np.array(counted)).tolist()
     unit.write_text(json.dumps(kept))
     assert main(args) == 0
     assert json.loads((out / "results.json").read_text())["calibration"]["pixels"] > 0
-
-
-def test_a_resumed_evaluation_runs_again_a_clip_counted_with_the_confidence_of_the_magnitude_alone(tmp_path):
-    """A clip kept by the version whose follower's confidence was ``sigmoid(1.084 |L| + 0.132)`` (its stamp
-    ``["pcreg_object", 1.084, 0.132]``) is counted again with the confidence of now, not read back."""
-    seq = write_pcreg_layout(tmp_path / "seq", frames_and_masks(6, shape=(96, 128)))
-    out = tmp_path / "out"
-    args = ["evaluate", "stream", "--data", f"davis:{seq}", "--methods", "pcreg_object", "--out", str(out)]
-    assert main(args) == 0
-    unit = out / "units" / "seq_reference.json"
-    kept = json.loads(unit.read_text())
-    counted = kept["calibration"]
-    kept["calibrated"], kept["calibration"] = ["pcreg_object", 1.084, 0.132], np.zeros_like(np.array(counted)).tolist()
-    unit.write_text(json.dumps(kept))
-    assert main(args) == 0
     assert json.loads(unit.read_text())["calibration"] == counted

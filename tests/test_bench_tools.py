@@ -294,10 +294,11 @@ def test_resize_clips_keeps_the_layout_and_the_class_ids(tmp_path):
 @pytest.mark.slow
 def test_fit_follow_confidence_fits_each_sequence_left_out_and_reads_its_samples_back(tmp_path, monkeypatch, capsys,
                                                                                         shared_data):
-    """Three shared DAVIS sequences cut to 12 frames: the five features and |L| alone are each fitted with one
-    sequence left out and on all; the samples kept by ``--samples`` are read back by a later run of the same
-    ``--data`` (the follower not run again); ``--score`` refuses a sequence that ``--data`` fits on, and labels all
-    right (nothing to fit) are refused."""
+    """Three shared DAVIS sequences cut to 12 frames: the three features and |L| alone are each fitted with one
+    sequence left out and on all; the samples kept by ``--samples`` (``.npz`` added) are read back by a later run of
+    the same ``--data`` (the follower not run again), not by one of another folder; ``--score`` refuses a sequence
+    that ``--data`` fits on; labels all right (nothing to fit), a folder of no sequence and a damaged samples file end
+    with a message."""
     import shutil
 
     from _davis import frames_and_masks, write_pcreg_layout
@@ -309,17 +310,22 @@ def test_fit_follow_confidence_fits_each_sequence_left_out_and_reads_its_samples
             (data / name / part).mkdir(parents=True)
             for f in sorted((shared_data / "davis" / name / part).iterdir())[:12]:
                 shutil.copy(f, data / name / part / f.name)
-    samples, out = tmp_path / "samples.npz", tmp_path / "fit.json"
+    samples, out = tmp_path / "samples", tmp_path / "fit.json"
     monkeypatch.setattr(sys, "argv", ["fit", "--data", str(data), "--samples", str(samples), "--out", str(out)])
     assert tool.main() == 0
     result = json.loads(out.read_text())
     assert [f["left_out"] for f in result["features"]["folds"]] == ["blackswan", "breakdance", "goat"]
-    assert len(result["features"]["shipped"]["w"]) == 5 and len(result["alone"]["shipped"]["w"]) == 1
+    assert len(result["features"]["shipped"]["w"]) == 3 and len(result["alone"]["shipped"]["w"]) == 1
     assert 0 < result["features"]["pooled_left_out"]["error"] < 10 and 0 <= result["features"]["pooled_left_out"]["ece"] < 0.2
     with monkeypatch.context() as m:
         m.setattr(tool, "record", lambda frames: pytest.fail("the kept samples were not read back"))
         assert tool.main() == 0
-    assert json.loads(out.read_text()) == result
+    assert json.loads(out.read_text()) == result and (tmp_path / "samples.npz").is_file()
+    shutil.copytree(data, tmp_path / "other")
+    shutil.rmtree(tmp_path / "other" / "goat")
+    monkeypatch.setattr(sys, "argv", ["fit", "--data", str(tmp_path / "other"), "--samples", str(samples), "--out", str(out)])
+    assert tool.main() == 0
+    assert [f["left_out"] for f in json.loads(out.read_text())["features"]["folds"]] == ["blackswan", "breakdance"]
     monkeypatch.setattr(sys, "argv", ["fit", "--data", str(data), "--score", str(data)])
     with pytest.raises(SystemExit):
         tool.main()
@@ -331,3 +337,11 @@ def test_fit_follow_confidence_fits_each_sequence_left_out_and_reads_its_samples
     with pytest.raises(SystemExit):
         tool.main()
     assert "labels both right and wrong" in capsys.readouterr().err
+    (tmp_path / "none").mkdir()
+    monkeypatch.setattr(sys, "argv", ["fit", "--data", str(tmp_path / "none")])
+    with pytest.raises(SystemExit, match="no DAVIS sequence"):
+        tool.main()
+    (tmp_path / "bad.npz").write_bytes(b"not a zip")
+    monkeypatch.setattr(sys, "argv", ["fit", "--data", str(data), "--samples", str(tmp_path / "bad.npz")])
+    with pytest.raises(SystemExit, match="holds no samples this tool kept"):
+        tool.main()

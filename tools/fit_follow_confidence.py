@@ -3,9 +3,9 @@
     python tools/fit_follow_confidence.py --data DAVIS:train --score DAVIS:val
 
 The follower (:class:`pcreg.pipeline.follow.ObjectFollower`, ``pcreg run --follow object``) gives each label the
-confidence ``sigmoid(w . f + b)`` of five features ``f`` of its pixel
+confidence ``sigmoid(w . f + b)`` of three features ``f`` of its pixel
 (:func:`pcreg.pipeline.follow_confidence.confidence_features`: the fused log-odds' magnitude ``|L|``, the distance to
-the labels' edge, the object's share of the frame, and products of those with ``|L|``). The follower is run over each
+the labels' edge, and their product). The follower is run over each
 sequence once (its labels do not depend on the confidence), and a sample of the pixels of its scored frames (1 to n-2)
 is kept: every :data:`SAMPLE`-th pixel of every :data:`SAMPLE`-th row, the grid shifted by one pixel and one row each
 frame. For each sequence, ``w`` and ``b`` are fitted (scikit-learn's logistic regression of "the label is right" on
@@ -43,11 +43,11 @@ C = 1e4
 
 
 def record(frames) -> tuple[np.ndarray, np.ndarray]:
-    """``(features, right)``: (n, 5) float32 features and (n,) bool "the label is right" of the sampled pixels of the
+    """``(features, right)``: (n, 3) float32 features and (n,) bool "the label is right" of the sampled pixels of the
     scored frames."""
     from pcreg.classification.davis_measures import scored_frames
     from pcreg.pipeline.follow import ObjectFollower
-    from pcreg.pipeline.follow_confidence import confidence_features
+    from pcreg.pipeline.follow_confidence import CONFIDENCE_FEATURES, confidence_features
 
     follower = ObjectFollower.from_key_frame(frames[0].image, frames[0].labels)
     scored = set(scored_frames(len(frames)))
@@ -58,16 +58,17 @@ def record(frames) -> tuple[np.ndarray, np.ndarray]:
             continue
         assert follower.log_odds is not None
         at = (slice(t % SAMPLE, None, SAMPLE), slice(t % SAMPLE, None, SAMPLE))
-        features.append(confidence_features(follower.log_odds, labels)[(slice(None), *at)].reshape(5, -1).T)
+        f = confidence_features(follower.log_odds, labels)
+        features.append(f[(slice(None), *at)].reshape(len(f), -1).T)
         right.append(((labels == 1) == (frames[t].labels == 1))[at].ravel())
     if not features:
-        return np.zeros((0, 5), np.float32), np.zeros(0, bool)
+        return np.zeros((0, len(CONFIDENCE_FEATURES)), np.float32), np.zeros(0, bool)
     return np.concatenate(features), np.concatenate(right)
 
 
 def fit(features: np.ndarray, right: np.ndarray) -> tuple[list[float], float]:
     """``(w, b)`` of the logistic regression of ``right`` on ``features`` (Newton's method: it converges to the
-    maximum on five features where L-BFGS, stopped by its tolerance, left a third of the folds elsewhere)."""
+    maximum, where L-BFGS, stopped by its tolerance, left 7 of 30 folds of a fit of five features short of it)."""
     from sklearn.linear_model import LogisticRegression
 
     model = LogisticRegression(C=C, solver="newton-cholesky").fit(features.astype(np.float64), right)
@@ -88,6 +89,8 @@ def _row(counts: np.ndarray) -> dict:
     from pcreg.experiments.stream_methods import calibration
 
     cal = calibration(counts)
+    if not cal.get("pixels"):  # a sequence too short to have a scored frame
+        return {"ece": float("nan"), "error": float("nan"), "error_top80": float("nan"), "top80_share": float("nan")}
     return {"ece": cal["ece"], "error": cal["error"], "error_top80": cal["error_top80"],
             "top80_share": cal["error_top80"] / cal["error"] if cal["error"] else 0.0}
 
@@ -97,6 +100,9 @@ def left_out(samples: dict, columns: list[int]) -> tuple[list[dict], dict]:
     rows, pooled = [], 0
     for name, (x, y) in samples.items():
         rest = [v for n, v in samples.items() if n != name]
+        if len({bool(v) for _, y in rest for v in np.unique(y)}) < 2:
+            raise SystemExit(f"fit_follow_confidence: with {name} left out, the other sequences' sampled labels are all "
+                             "right (or all wrong): nothing to fit")
         w, b = fit(np.concatenate([v[0] for v in rest])[:, columns], np.concatenate([v[1] for v in rest]))
         counts = scored(x[:, columns], y, w, b)
         pooled = pooled + counts
@@ -105,28 +111,49 @@ def left_out(samples: dict, columns: list[int]) -> tuple[list[dict], dict]:
 
 
 def _load(arg: str) -> dict:
-    """The sequences of ``arg``, a folder or ``ROOT:SPLIT`` as ``--data davis:`` takes them."""
+    """The sequences of ``arg``, a folder or ``ROOT:SPLIT`` as ``--data davis:`` takes them (a folder of none, or
+    none at all, ends the tool with its message)."""
     from pcreg.datasets.davis import load_davis
+    from pcreg.datasets.davis_splits import parse_davis_arg
+    from pcreg.errors import PcregError
+
+    try:
+        path, split = parse_davis_arg(arg)
+        return load_davis(path, split=split)
+    except PcregError as e:
+        raise SystemExit(f"fit_follow_confidence: {arg}: {e}") from None
+
+
+def _key(arg: str) -> str:
+    """What the samples of ``arg`` are kept under: its folder resolved, and its split."""
     from pcreg.datasets.davis_splits import parse_davis_arg
 
     path, split = parse_davis_arg(arg)
-    return load_davis(path, split=split)
+    return f"{Path(path).resolve()}:{split}"
 
 
 def _samples(arg: str, keep: str | None) -> dict:
     """``{sequence: (features, right)}`` of ``arg``, read from ``keep`` where it holds them."""
+    import zipfile
+
+    if keep and not keep.endswith(".npz"):  # numpy adds the suffix when it writes
+        keep += ".npz"
     if keep and Path(keep).is_file():
-        with np.load(keep) as z:
-            if str(z["data"]) == arg:
-                names = [str(n) for n in z["names"]]
-                return {n: (z[f"x_{i}"], z[f"y_{i}"]) for i, n in enumerate(names)}
+        try:
+            with np.load(keep) as z:
+                if str(z["data"]) == _key(arg):
+                    names = [str(n) for n in z["names"]]
+                    return {n: (z[f"x_{i}"], z[f"y_{i}"]) for i, n in enumerate(names)}
+        except (OSError, ValueError, KeyError, zipfile.BadZipFile) as e:
+            raise SystemExit(f"fit_follow_confidence: {keep} holds no samples this tool kept ({e}); remove it, or name "
+                             "another file") from None
     from tqdm import tqdm
 
     data = _load(arg)
     samples = {name: record(frames) for name, frames in tqdm(data.items(), desc="sequences", unit="seq")}
     if keep:
         arrays = {f"x_{i}": v[0] for i, v in enumerate(samples.values())} | {f"y_{i}": v[1] for i, v in enumerate(samples.values())}
-        np.savez(keep, data=arg, names=np.array(list(samples)), **arrays)
+        np.savez(keep, data=_key(arg), names=np.array(list(samples)), **arrays)
     return samples
 
 
@@ -154,20 +181,20 @@ def main() -> int:
         p.error(f"--data {args.data}: a fit with one sequence left out needs two sequences or more, and labels both "
                 "right and wrong among their samples")
     result = {}
-    for key, columns in (("alone", [0]), ("features", [0, 1, 2, 3, 4])):
+    for key, columns in (("alone", [0]), ("features", [0, 1, 2])):
         rows, pooled = left_out(samples, columns)
-        _table("|L| alone" if key == "alone" else "the five features", rows, pooled)
+        _table("|L| alone" if key == "alone" else "the three features", rows, pooled)
         w, b = fit(np.concatenate([v[0] for v in samples.values()])[:, columns],
                    np.concatenate([v[1] for v in samples.values()]))
         result[key] = {"folds": rows, "pooled_left_out": pooled, "shipped": {"w": w, "b": b}}
         print(f"fitted on every sequence of --data: w {', '.join(f'{v:.3f}' for v in w)}, b {b:.3f}")
     if args.score:
         scores = _samples(args.score, None)
-        for key, columns in (("alone", [0]), ("features", [0, 1, 2, 3, 4])):
+        for key, columns in (("alone", [0]), ("features", [0, 1, 2])):
             fitted = result[key]["shipped"]
             rows = [{"left_out": n, **_row(scored(x[:, columns], y, fitted["w"], fitted["b"]))} for n, (x, y) in scores.items()]
             pooled = _row(sum(scored(x[:, columns], y, fitted["w"], fitted["b"]) for x, y in scores.values()))
-            _table(f"scored, never fitted on ({'|L| alone' if key == 'alone' else 'the five features'})", rows, pooled)
+            _table(f"scored, never fitted on ({'|L| alone' if key == 'alone' else 'the three features'})", rows, pooled)
             result[key]["scored"] = {"rows": rows, "pooled": pooled}
     if args.out:
         Path(args.out).write_text(json.dumps(result, indent=2))

@@ -32,8 +32,8 @@ blurs away (a kite's bar, a hand) keep their colour's say; then only the largest
 within :data:`NEAR` px of it are kept, which drops far-off blobs of the object's colours, and those on a part of
 the key frame's object that lies farther than that from its largest, carried by the key flow (a part drawn
 there is the object's, however far; :func:`_far_parts`). Its confidence
-is a logistic regression over the sum's magnitude, the distance to the labels' edge and the object's share of the
-frame (:mod:`~pcreg.pipeline.follow_confidence`); once the
+is a logistic regression over the sum's magnitude, the distance to the labels' edge and their product
+(:mod:`~pcreg.pipeline.follow_confidence`); once the
 labels hold no object (it left the frame), the colour term's alone, since the carried 'nowhere' saw nothing
 (an object that left the frame is not searched for again; the five DAVIS sequences never lose theirs).
 

@@ -296,7 +296,8 @@ def test_fit_follow_confidence_fits_each_sequence_left_out_and_reads_its_samples
                                                                                         shared_data):
     """Three shared DAVIS sequences cut to 12 frames: the three features and |L| alone are each fitted with one
     sequence left out and on all; the samples kept by ``--samples`` (``.npz`` added) are read back by a later run of
-    the same ``--data`` (the follower not run again), not by one of another folder; ``--score`` refuses a sequence
+    the same ``--data`` (the follower not run again) and refused, not written over, for another folder; an ``--out``
+    whose folder does not exist is refused before the follower runs; ``--score`` refuses a sequence
     that ``--data`` fits on; labels all right (nothing to fit), a folder of no sequence and a damaged samples file end
     with a message."""
     import shutil
@@ -324,8 +325,14 @@ def test_fit_follow_confidence_fits_each_sequence_left_out_and_reads_its_samples
     shutil.copytree(data, tmp_path / "other")
     shutil.rmtree(tmp_path / "other" / "goat")
     monkeypatch.setattr(sys, "argv", ["fit", "--data", str(tmp_path / "other"), "--samples", str(samples), "--out", str(out)])
-    assert tool.main() == 0
-    assert [f["left_out"] for f in json.loads(out.read_text())["features"]["folds"]] == ["blackswan", "breakdance"]
+    with pytest.raises(SystemExit, match="holds the samples of"):  # kept, not written over
+        tool.main()
+    assert json.loads(out.read_text()) == result
+    monkeypatch.setattr(sys, "argv", ["fit", "--data", str(tmp_path / "other"), "--samples", str(tmp_path / "s2"), "--out",
+                                      str(tmp_path / "no" / "fit.json")])
+    with pytest.raises(SystemExit):  # said before the follower runs
+        tool.main()
+    assert "its folder does not exist" in capsys.readouterr().err and not (tmp_path / "s2.npz").exists()
     monkeypatch.setattr(sys, "argv", ["fit", "--data", str(data), "--score", str(data)])
     with pytest.raises(SystemExit):
         tool.main()

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -40,6 +41,9 @@ import benchlib  # noqa: E402, F401  (puts the checkout on the path)
 SAMPLE = 18
 #: The regression's inverse regularisation: large, a plain maximum-likelihood fit on millions of samples.
 C = 1e4
+#: The fits made and scored, each a title and the columns of the features it takes: ``|L|`` alone (the confidence
+#: before the features), and the three features shipped.
+MODELS = {"alone": ("|L| alone", [0]), "features": ("the three features", [0, 1, 2])}
 
 
 def record(frames) -> tuple[np.ndarray, np.ndarray]:
@@ -100,7 +104,7 @@ def left_out(samples: dict, columns: list[int]) -> tuple[list[dict], dict]:
     rows, pooled = [], 0
     for name, (x, y) in samples.items():
         rest = [v for n, v in samples.items() if n != name]
-        if len({bool(v) for _, y in rest for v in np.unique(y)}) < 2:
+        if len({bool(v) for _, r in rest for v in np.unique(r)}) < 2:
             raise SystemExit(f"fit_follow_confidence: with {name} left out, the other sequences' sampled labels are all "
                              "right (or all wrong): nothing to fit")
         w, b = fit(np.concatenate([v[0] for v in rest])[:, columns], np.concatenate([v[1] for v in rest]))
@@ -110,18 +114,18 @@ def left_out(samples: dict, columns: list[int]) -> tuple[list[dict], dict]:
     return rows, _row(pooled)
 
 
-def _load(arg: str) -> dict:
-    """The sequences of ``arg``, a folder or ``ROOT:SPLIT`` as ``--data davis:`` takes them (a folder of none, or
-    none at all, ends the tool with its message)."""
-    from pcreg.datasets.davis import load_davis
+def _sequences(arg: str) -> dict:
+    """``{name: (frames folder, masks folder)}`` of ``arg``, a folder or ``ROOT:SPLIT`` as ``--data davis:`` takes
+    them (a folder of none, or none at all, ends the tool with its message)."""
+    from pcreg.datasets.davis import find_sequences
     from pcreg.datasets.davis_splits import parse_davis_arg
     from pcreg.errors import PcregError
 
     try:
         path, split = parse_davis_arg(arg)
-        return load_davis(path, split=split)
+        return find_sequences(path, split=split)[0]
     except PcregError as e:
-        raise SystemExit(f"fit_follow_confidence: {arg}: {e}") from None
+        raise SystemExit(f"fit_follow_confidence: {e}") from None
 
 
 def _key(arg: str) -> str:
@@ -141,19 +145,36 @@ def _samples(arg: str, keep: str | None) -> dict:
     if keep and Path(keep).is_file():
         try:
             with np.load(keep) as z:
-                if str(z["data"]) == _key(arg):
+                kept = str(z["data"])
+                if kept == _key(arg):
                     names = [str(n) for n in z["names"]]
                     return {n: (z[f"x_{i}"], z[f"y_{i}"]) for i, n in enumerate(names)}
         except (OSError, ValueError, KeyError, zipfile.BadZipFile) as e:
             raise SystemExit(f"fit_follow_confidence: {keep} holds no samples this tool kept ({e}); remove it, or name "
                              "another file") from None
+        raise SystemExit(f"fit_follow_confidence: {keep} holds the samples of {kept}, not of {_key(arg)}: name another "
+                         "file, or remove it")
     from tqdm import tqdm
 
-    data = _load(arg)
-    samples = {name: record(frames) for name, frames in tqdm(data.items(), desc="sequences", unit="seq")}
+    from pcreg.datasets.davis import load_objects
+    from pcreg.errors import PcregError
+
+    samples = {}
+    for name, (frames, masks) in tqdm(_sequences(arg).items(), desc="sequences", unit="seq"):
+        try:  # one sequence in memory at a time
+            clips = load_objects(frames, masks, name=name)
+        except PcregError as e:
+            raise SystemExit(f"fit_follow_confidence: {e}") from None
+        for clip, clip_frames in clips.items():
+            samples[clip] = record(clip_frames)
+            if not len(samples[clip][1]):
+                print(f"{clip}: {len(clip_frames)} frames, none of them scored (1 to n-2): left out", file=sys.stderr)
+                del samples[clip]
     if keep:
         arrays = {f"x_{i}": v[0] for i, v in enumerate(samples.values())} | {f"y_{i}": v[1] for i, v in enumerate(samples.values())}
-        np.savez(keep, data=_key(arg), names=np.array(list(samples)), **arrays)
+        with open(f"{keep}.part", "wb") as f:  # whole or not at all: a stopped run leaves no half-written samples
+            np.savez(f, data=_key(arg), names=np.array(list(samples)), **arrays)
+        os.replace(f"{keep}.part", keep)
     return samples
 
 
@@ -173,7 +194,10 @@ def main() -> int:
     p.add_argument("--samples", default=None, help="keep the samples of --data in this .npz, and read them back")
     p.add_argument("--out", default=None, help="write the tables as JSON here")
     args = p.parse_args()
-    both = sorted(set(_load(args.data)) & set(_load(args.score))) if args.score else []
+    for option, path in (("--samples", args.samples), ("--out", args.out)):  # said now, not after the follower ran
+        if path and (Path(path).is_dir() or not Path(path).resolve().parent.is_dir()):
+            p.error(f"{option} {path}: " + ("a folder, not a file" if Path(path).is_dir() else "its folder does not exist"))
+    both = sorted(set(_sequences(args.data)) & set(_sequences(args.score))) if args.score else []
     if both:
         p.error(f"--score {args.score} holds sequences --data fits on: {', '.join(both)}")
     samples = _samples(args.data, args.samples)
@@ -181,20 +205,20 @@ def main() -> int:
         p.error(f"--data {args.data}: a fit with one sequence left out needs two sequences or more, and labels both "
                 "right and wrong among their samples")
     result = {}
-    for key, columns in (("alone", [0]), ("features", [0, 1, 2])):
+    for key, (title, columns) in MODELS.items():
         rows, pooled = left_out(samples, columns)
-        _table("|L| alone" if key == "alone" else "the three features", rows, pooled)
+        _table(title, rows, pooled)
         w, b = fit(np.concatenate([v[0] for v in samples.values()])[:, columns],
                    np.concatenate([v[1] for v in samples.values()]))
         result[key] = {"folds": rows, "pooled_left_out": pooled, "shipped": {"w": w, "b": b}}
         print(f"fitted on every sequence of --data: w {', '.join(f'{v:.3f}' for v in w)}, b {b:.3f}")
     if args.score:
         scores = _samples(args.score, None)
-        for key, columns in (("alone", [0]), ("features", [0, 1, 2])):
+        for key, (title, columns) in MODELS.items():
             fitted = result[key]["shipped"]
             rows = [{"left_out": n, **_row(scored(x[:, columns], y, fitted["w"], fitted["b"]))} for n, (x, y) in scores.items()]
             pooled = _row(sum(scored(x[:, columns], y, fitted["w"], fitted["b"]) for x, y in scores.values()))
-            _table(f"scored, never fitted on ({'|L| alone' if key == 'alone' else 'the three features'})", rows, pooled)
+            _table(f"scored, never fitted on ({title})", rows, pooled)
             result[key]["scored"] = {"rows": rows, "pooled": pooled}
     if args.out:
         Path(args.out).write_text(json.dumps(result, indent=2))

@@ -99,14 +99,17 @@ def display_turn(frame, path: Path) -> Turn:
     autorotation does. PyAV's ``VideoFrame.rotation`` gives the angle alone: a mirrored matrix (a selfie camera's)
     read as a rotation is shown upside down. A matrix that is not quarter turns is refused; one of zeros (no angle) turns
     nothing, as in FFmpeg's players."""
-    from av.sidedata.sidedata import SideDataContainer
+    from av.sidedata.sidedata import SideDataContainer, Type
 
     # Read through a container of its own, not ``frame.side_data``: that property keeps its container on the frame,
     # which refers back to the frame, so the frame (and its picture, FFmpeg's memory) would be freed only by
     # Python's cycle collector, and one that outlived a collection only by a full one, rare in a long run: decoding's
     # memory grew with them, about 2.5 kB a frame at 320x240 (docs/benchmarks.md).
     side = SideDataContainer(frame)  # type: ignore[call-arg]  # PyAV's stub leaves out its constructor
-    matrix = next((bytes(sd) for sd in side if sd.type.name == "DISPLAYMATRIX"), None)
+    try:  # looked up by its type: iterating the container gives the side data up to PyAV 18.1.0, their types since
+        matrix: bytes | None = bytes(side[Type.DISPLAYMATRIX])
+    except KeyError:
+        matrix = None
     if matrix is None or len(matrix) != 36:
         return False, False, False
     a, b, _, c, d = np.frombuffer(matrix, dtype=np.int32)[:5].astype(float)

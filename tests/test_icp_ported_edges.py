@@ -82,9 +82,10 @@ def test_identical_clouds_give_the_identity_everywhere():
 
 def test_a_2d_line_lifted_to_3d_that_an_implementation_turns_over_is_its_refused_row():
     """A 2-D cloud on one line (a scan line): the reference ICP solves the 2-D problem. Open3D's tensor ICP, on the
-    cloud lifted to z = 0, turns the plane over about the line for some motions (this one, a 6-degree turn, in one
-    thread and in two), and its row reported the mirrored in-plane block (determinant -1) as its converged result;
-    such a row is now a failure that says why, and every row that reports a matrix reports a rotation."""
+    cloud lifted to z = 0, turns the plane over about the line for some motions (this one, a 6-degree turn, in most
+    runs; not in every run under load), and its row reported the mirrored in-plane block (determinant -1) as its
+    converged result; such a row is now a failure that says why (the check itself is tested on that result, so the
+    test does not hang on Open3D's threads), and every row that reports a matrix reports a rotation."""
     L = np.column_stack([np.linspace(0, 10, 50), np.zeros(50)])
     T = tf.rigid2d(6, 0.1, 0.05)
     report = crosscheck_implementations(tf.apply(np.linalg.inv(T), L), L, implementations=EXACT,
@@ -93,8 +94,19 @@ def test_a_2d_line_lifted_to_3d_that_an_implementation_turns_over_is_its_refused
         if row["error"] is None:
             assert np.linalg.det(np.asarray(row["matrix"])[:2, :2]) > 0, name
             assert row.get("info", {}).get("out_of_plane", 0.0) < 1e-6, name
-    assert "turned the plane over" in report.rows["open3d-tensor"]["error"]
+    tensor = report.rows["open3d-tensor"]["error"]
+    if tensor is not None:  # it turns this plane over in most runs; whether it does depends on its threads' timing
+        assert "turned the plane over" in tensor
     assert report.rows["reference"]["converged"] and report.rows["kiss-icp"]["agrees"]
+    # the check that refuses such a row, on the result Open3D gave: the motion after a half turn about the line
+    from pcreg.implementations.base import ImplementationError, _check_in_plane, out_of_plane, project
+
+    lifted = np.eye(4)
+    lifted[:2, :2], lifted[:2, 3] = T[:2, :2], T[:2, 2]
+    turned = lifted @ np.diag([1.0, -1.0, -1.0, 1.0])
+    with pytest.raises(ImplementationError, match="turned the plane over"):
+        _check_in_plane(project(turned), out_of_plane(turned))
+    _check_in_plane(project(lifted), out_of_plane(lifted))  # the motion itself, in the plane: no refusal
 
 
 def test_a_3d_line_cannot_fix_a_rigid_motion_and_is_refused(tmp_path, capsys):

@@ -3,6 +3,8 @@
 
 import json
 
+import pytest
+
 from pcreg.cli import main
 from _runs import drifting_frames, one_line_errors
 
@@ -29,3 +31,23 @@ def test_an_evaluation_into_a_runs_folder_and_a_run_into_an_evaluations_are_refu
         err = one_line_errors(capsys)
         assert len(err) == 1 and f"{evaluation}: an evaluation's folder" in err[0], err
     assert sorted(p.name for p in evaluation.iterdir()) == report
+
+
+@pytest.mark.parametrize("experiment, held, extra", [("sequence", "checks.md", ["--frames", "6"]),
+                                                     ("classification", "case1.csv", ["--frames", "6", "--cases", "I", "--k", "3"])])
+def test_an_evaluation_into_a_folder_of_no_evaluation_holding_a_file_its_report_writes_is_refused(tmp_path, capsys,
+                                                                                                  experiment, held, extra):
+    """A person's own checks.md in a folder given as an evaluation's --out was written over by the report without a
+    word. Refused in one line naming it, before anything is written; a file of another name is no obstacle; --force
+    writes over it."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / held).write_text("a person's own")
+    (out / "notes.md").write_text("another of theirs")
+    command = ["evaluate", experiment, *extra, "--out", str(out)]
+    assert main(command) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and f"{out / held}: the report would write over it" in err[0] and "--force" in err[0], err
+    assert sorted(p.name for p in out.iterdir() if p.name != ".pcreg.lock") == sorted([held, "notes.md"])
+    assert main([*command, "--force"]) == 0
+    assert (out / held).read_text() != "a person's own" and (out / "notes.md").read_text() == "another of theirs"

@@ -191,6 +191,10 @@ def test_bad_videos_and_options_are_refused_in_one_line(tmp_path, frames, capsys
     assert f"{empty_avi}: no frame decodes" in refused(empty_avi)
     assert f"{empty_mp4}: holds no video stream (no stream at all" in refused(empty_mp4)
     assert f"{sound}: holds no video stream (only audio streams: a recording of sound alone" in refused(sound)
+    m4a, mp3 = _songs_with_cover_art(tmp_path, frames[0].image)
+    assert f"{m4a}: holds no video stream, only a still picture attached to it (cover art of a recording of sound)" \
+        in refused(m4a)
+    assert f"{mp3}: not a video (FFmpeg reads it as mp3, not as" in refused(mp3)
     assert "--every: expected an integer" in refused(good, "--every", 0)
     assert f"--start 8 is past the end of {good} (8 frames)" in refused(good, "--start", 8)
     assert "--stop 3 must be greater than --start 3" in refused(good, "--start", 3, "--stop", 3)
@@ -654,3 +658,31 @@ def test_a_video_of_frames_too_small_to_register_is_refused_naming_the_file(tmp_
     cv2.imwrite(str(tmp_path / "key.png"), labels)
     assert main(["run", str(path), "--labels", str(tmp_path / "key.png"), "--out", str(tmp_path / "out")]) == 2
     assert one_line_errors(capsys) == [f"pcreg: error: {path} frame 000000: image too small to register (3x5 px)"]
+
+
+def _songs_with_cover_art(folder, picture) -> list:
+    """A recording of sound with a picture attached as its cover, in MP4 (an .m4a named .mp4) and in MP3 (named
+    .mp4): FFmpeg lists the picture as a video stream, which was read as a video of one frame ("needs at least two
+    frames") or, the MP3, as a video in a container pcreg does not read, to convert."""
+    import av
+    from av.stream import Disposition
+
+    songs = []
+    for fmt, codec in (("mp4", "aac"), ("mp3", "libmp3lame")):
+        path = folder / f"song-{fmt}.mp4"
+        with av.open(str(path), "w", format=fmt) as container:
+            sound = container.add_stream(codec, rate=44100)
+            cover = container.add_stream("mjpeg", rate=1)
+            cover.width, cover.height, cover.pix_fmt = picture.shape[1], picture.shape[0], "yuvj420p"
+            cover.disposition = Disposition.attached_pic
+            for packet in cover.encode(av.VideoFrame.from_ndarray(picture, format="rgb24").reformat(format="yuvj420p")):
+                container.mux(packet)
+            for i in range(30):  # under a second: FFmpeg reads a shorter MP3 as no MP3
+                tone = av.AudioFrame.from_ndarray(np.zeros((1, 1152), np.float32), format="fltp", layout="mono")
+                tone.sample_rate, tone.pts = 44100, 1152 * i
+                for packet in sound.encode(tone):
+                    container.mux(packet)
+            for packet in sound.encode(None):
+                container.mux(packet)
+        songs.append(path)
+    return songs

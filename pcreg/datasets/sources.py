@@ -291,16 +291,22 @@ class VideoFrames:
             raise InputError(f"{self.path}: not a video FFmpeg can read ({reason}): not a video, or truncated or "
                              "damaged") from None
         fmt = container.format.name
+        moving = [v for v in container.streams.video if not _attached(v)]  # cover art is no video
         if fmt not in _CONTAINERS:
-            video = bool(container.streams.video) and not fmt.endswith("_pipe")  # an image renamed: no video
+            video = bool(moving) and not fmt.endswith("_pipe")  # an image renamed, a song's cover: no video
             container.close()
             if video:
                 raise InputError(f"{self.path}: a video in a container pcreg does not read (FFmpeg reads it as {fmt}, "
                                  f"not as {', '.join(_CONTAINERS.values())}); {convert_hint(self.path)}")
             raise InputError(f"{self.path}: not a video (FFmpeg reads it as {fmt}, not as {', '.join(_CONTAINERS.values())})")
-        if not container.streams.video:
-            kinds = sorted({s.type for s in container.streams})
+        if not moving:
+            art = bool(container.streams.video)
+            kinds = sorted({s.type for s in container.streams if s.type != "video"})
             container.close()
+            if art:
+                sound = " of a recording of sound" if kinds == ["audio"] else ""
+                raise InputError(f"{self.path}: holds no video stream, only a still picture attached to it (cover art{sound}), "
+                                 "not frames")
             held = f"only {' and '.join(kinds)} streams{': a recording of sound alone' if kinds == ['audio'] else ''}, or" if kinds else "no stream at all:"
             raise InputError(f"{self.path}: holds no video stream ({held} an empty or damaged {_CONTAINERS[fmt]} file)")
         if container.streams.video[0].codec_context is None:  # PyAV opens no decoder for a codec FFmpeg does not know

@@ -273,7 +273,7 @@ def evaluate(config: ClassificationConfig, *, out: str | Path | None = None, for
     lengths = {d: len(v) for d, v in datasets.items()}
     units, ks = plan_units(config, lengths)
     cfg_dict = plain_config(config)
-    store = UnitStore(out, cfg_dict, force=force) if out is not None else None
+    store = UnitStore(out, cfg_dict, force=force, report="classification") if out is not None else None
     searches = []
     if any("thesis" in fs.split("+") for fs in config.features):
         jobs = [Unit(f"weights/{d}", d, (), config) for d in datasets]

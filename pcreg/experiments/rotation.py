@@ -261,7 +261,7 @@ def evaluate(config: RotationConfig, *, out: str | Path | None = None, force: bo
         sys.stderr.write(f"pcreg: note: {line}\n")
     results = evaluate_units(units, run_unit, config, summarise=summarise, out=out, force=force, executor=executor,
                              recorder=recorder, desc="rotation", show_progress=show_progress, kept=kept,
-                             data_notes=data_notes)
+                             data_notes=data_notes, report="rotation")
     return replace(results, notes=notes) if notes else results
 
 

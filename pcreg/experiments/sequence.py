@@ -213,7 +213,7 @@ def evaluate(config: SequenceConfig, *, out: str | Path | None = None, force: bo
     plan = plan_units(config, list(datasets))
     results = evaluate_units(plan, run_unit, config, summarise=summarise, out=out, force=force, executor=executor,
                              recorder=recorder, desc="sequence", show_progress=show_progress, kept=kept,
-                             data_notes=data_notes)
+                             data_notes=data_notes, report="sequence")
     units = results.units
     if units and not any(u["pairs"] for u in units):  # a report without a number is the input's fault
         if out is not None:  # nothing kept: the corrected command resumes nothing and is not refused

@@ -353,7 +353,7 @@ def evaluate(config: StreamConfig, *, out=None, force: bool = False, executor=No
                 raise InputError(f"clip {clip}: {exc}") from None
     return evaluate_units(plan_units(config, list(datasets)), run_unit, config, summarise=summarise, out=out,
                           force=force, executor=executor, recorder=recorder, show_progress=show_progress, kept=kept,
-                          data_notes=data_notes,
+                          data_notes=data_notes, report="stream",
                           desc=Tally("stream", "frame", lambda u: (len(datasets[u.dataset]) - 1) * len(config.methods)))
 
 

@@ -191,12 +191,15 @@ class UnitStore:
     (finished units are loaded, not rerun); a different one raises :class:`~pcreg.errors.OutputError`
     unless ``force``, which clears the old units and report (:func:`~.reports.files.remove_report`), or unless
     no unit finished and no report was written (nothing is lost: it is replaced). ``force`` with the same
-    configuration reruns all. Finished units without a readable config.json are refused as well.
+    configuration reruns all. Finished units without a readable config.json are refused as well, and so, without
+    ``force``, is a folder of no evaluation that holds a file the ``report`` of that name would write over
+    (:func:`~.reports.files.in_the_way`: a person's own checks.md, say).
     """
 
-    def __init__(self, out: str | Path, config: dict, *, force: bool) -> None:
+    def __init__(self, out: str | Path, config: dict, *, force: bool, report: str | None = None) -> None:
         from ..outputs import atomic_write_bytes, atomic_write_json
         from ..errors import OutputError
+        from .reports.files import in_the_way
 
         self.out = Path(out)
         self.dir = self.out / "units"
@@ -206,6 +209,10 @@ class UnitStore:
         if (self.out / "run.json").is_file():  # pcreg run's state (pcreg.runs.state.STATE)
             raise OutputError(f"{self.out}: a pcreg run's folder (its run.json): the evaluation's files would mix with "
                               "the run's labels, --force or not; give another --out")
+        held = None if force or report is None else in_the_way(self.out, report)
+        if held is not None:
+            raise OutputError(f"{held}: the report would write over it, and {self.out} holds no evaluation of pcreg's "
+                              "(no config.json); give another --out, or --force to write over it")
         old = None
         if cfg_path.is_file():
             try:
@@ -427,7 +434,7 @@ def for_workers(config: Any) -> Any:
 def evaluate_units(units: list, run_unit, config: Any, *, summarise, out: str | Path | None = None,
                    force: bool = False, executor=None, recorder=NULL_RECORDER, desc: "str | Tally" = "",
                    show_progress: bool | None = None, kept: Callable[[Unit, dict], bool] | None = None,
-                   data_notes: tuple[str, ...] = ()) -> Results:
+                   data_notes: tuple[str, ...] = (), report: str | None = None) -> Results:
     """The body every resumable evaluation shares: run the units not finished in ``out/units`` (all of
     them without ``out``; ``kept``, ``desc``: as :func:`run_resumable`), summarise their results in order (``summarise(config, results)``), and add
     the presets' real counterparts, the number of resumed units, the wall time and ``data_notes`` (:func:`say_damage`'s)."""
@@ -437,7 +444,7 @@ def evaluate_units(units: list, run_unit, config: Any, *, summarise, out: str | 
 
     t0 = time.perf_counter()
     cfg_dict = plain_config(config)
-    store = UnitStore(out, cfg_dict, force=force) if out is not None else None
+    store = UnitStore(out, cfg_dict, force=force, report=report) if out is not None else None
     done, resumed = run_resumable(units, run_unit, store=store, cfg_dict=cfg_dict, recorder=recorder,
                                   executor=executor, desc=desc, show_progress=show_progress, kept=kept)
     results = summarise(config, [done[u.key] for u in units])

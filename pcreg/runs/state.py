@@ -213,7 +213,7 @@ def open_state(out: Path, identity: dict | None, *, force: bool, frames=None) ->
     options, an unreadable run.json, or one whose fields are not as pcreg run writes them
     (:func:`state_problem`) is an :class:`~pcreg.errors.OutputError`, and so, without ``force``, is a folder of no
     run (no run.json, no steps.jsonl: a run writes that first) that holds a label PNG or confidence map the run
-    over ``frames`` would write over (a person's own corrected labels, say)."""
+    over ``frames`` would write over (a person's own corrected labels, say), or a steps.jsonl that is not empty."""
     if out.exists() and not out.is_dir():
         raise OutputError(f"{out}: exists and is not a folder")
     if (out / "config.json").is_file() and ((out / "results.json").exists() or (out / "units").is_dir()):
@@ -226,6 +226,8 @@ def open_state(out: Path, identity: dict | None, *, force: bool, frames=None) ->
         mine = (out, out / CONFIDENCE) if (identity or {}).get("confidence") else (out,)  # where it writes
         held = next((q for d in mine if d.is_dir() for q in sorted(d.iterdir())
                      if q.suffix.lower() == ".png" and frames.writes(q.stem)), None)
+        if held is None and (out / STEPS).is_file():  # not empty (``begun``): a person's, as no run leaves it without run.json
+            held = out / STEPS
         if held is not None:
             raise OutputError(f"{held}: this run would write over it, and {out} holds no run of pcreg's (no {STATE}); "
                               "give another --out, or --force to write over it")

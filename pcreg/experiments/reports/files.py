@@ -13,6 +13,27 @@ from pathlib import Path
 MANIFEST = ".report_files"
 #: The report's file of what reading the data met (results.json's ``data_notes``), written when there is any.
 DATA_NOTES = "data_notes.md"
+#: What each evaluation's report names its files by, beside :data:`DATA_NOTES`: ``NAME.csv|md|png`` or
+#: ``NAME_*.csv|md|png`` of one of these names, and its checks.md.
+REPORT_NAMES = {"stream": ("stream", "davis"), "sequence": ("sequence",), "rotation": ("rotation",),
+                "classification": ("table41", "case1", "case2", "case3")}
+_CHECKED = ("stream", "sequence", "rotation")  # the reports with a checks.md
+
+
+def in_the_way(out: Path, experiment: str) -> Path | None:
+    """A file in ``out`` that the report of ``experiment`` (a key of :data:`REPORT_NAMES`) would write over while
+    ``out`` holds no evaluation (no config.json, results.json, :data:`MANIFEST` or units/): a person's own
+    checks.md, say, no evaluation wrote; None when there is none."""
+    if not out.is_dir() or any((out / n).exists() or (out / n).is_symlink()
+                               for n in ("config.json", "results.json", MANIFEST, "units", "run.json")):
+        return None  # an evaluation's folder, or a run's (refused as one)
+    names = REPORT_NAMES[experiment]
+    for q in sorted(out.iterdir()):
+        stem, suffix = q.stem, q.suffix.lower()
+        if q.name == DATA_NOTES or (q.name == "checks.md" and experiment in _CHECKED) or (suffix in (".csv", ".md", ".png")
+                                                   and any(stem == n or stem.startswith(f"{n}_") for n in names)):
+            return q
+    return None
 
 
 def _manifest(out: Path) -> list[str] | None:

@@ -8,6 +8,7 @@ A real ``pcreg run`` of five small synthetic frames, served in-process (:class:`
 from __future__ import annotations
 
 import contextlib
+import http.client
 import io
 import json
 import os
@@ -303,6 +304,34 @@ def test_a_connection_left_idle_is_closed_by_the_server_and_its_thread_ends(run_
                 assert sock.recv(1) == b""  # closed by the server, nothing sent
         until(lambda: not _handlers(), what="the idle connections' threads done", bound=60)
         assert _get(server.url + "overlay/1.jpg")[0] == 200
+    err = capfd.readouterr().err
+    assert "Traceback" not in err, err
+
+
+def test_connections_beyond_those_served_at_once_are_answered_busy_and_the_server_serves_on(run_out, monkeypatch, capfd):
+    """5,000 connections opened and left idle made 5,000 threads, each held until its idle time. Past
+    ``MAX_CONNECTIONS`` (lowered here) a connection is answered 503 and closed at once; once one of the idle ones is
+    closed, the server answers again."""
+    from pcreg.recording import report
+    from pcreg.recording.review import ReviewServer
+    from pcreg.review import read_review
+
+    monkeypatch.setattr(report, "MAX_CONNECTIONS", 4)
+    with ReviewServer(read_review(run_out), web_port=0) as server:
+        idle = [socket.create_connection(("127.0.0.1", server.port)) for _ in range(4)]
+        until(lambda: len(_handlers()) == 4, what="a thread for each idle connection", bound=60)
+        for _ in range(20):  # 503, or the connection reset where the server closed it before the request came in
+            try:
+                status, body = _get(server.url + "overlay/1.jpg")
+            except (urllib.error.URLError, ConnectionError, http.client.RemoteDisconnected):
+                continue
+            assert (status, body) == (503, b"the server has too many open connections\n")
+        assert len(_handlers()) == 4
+        idle.pop().close()
+        until(lambda: _get(server.url + "overlay/1.jpg")[0] == 200, what="an answer once a connection closed", bound=60)
+        for sock in idle:
+            sock.close()
+        until(lambda: not _handlers(), what="the idle connections' threads done", bound=60)
     err = capfd.readouterr().err
     assert "Traceback" not in err, err
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import ClassVar
 from pathlib import Path
 
 from ..classification.features import DEFAULT_FEATURES
@@ -51,6 +52,8 @@ class ClassificationConfig:
     size : (width, height) of synthetic frames (default 640x480).
     exclude_unknown : leave unknown pixels out of training and scoring.
     """
+
+    report: ClassVar[str] = "classification"  #: its report's name (:data:`~.reports.files.REPORT_NAMES`)
 
     data: str = "synthetic"
     cases: tuple[str, ...] = CASES
@@ -273,7 +276,7 @@ def evaluate(config: ClassificationConfig, *, out: str | Path | None = None, for
     lengths = {d: len(v) for d, v in datasets.items()}
     units, ks = plan_units(config, lengths)
     cfg_dict = plain_config(config)
-    store = UnitStore(out, cfg_dict, force=force, report="classification") if out is not None else None
+    store = UnitStore(out, cfg_dict, force=force, report=config.report) if out is not None else None
     searches = []
     if any("thesis" in fs.split("+") for fs in config.features):
         jobs = [Unit(f"weights/{d}", d, (), config) for d in datasets]

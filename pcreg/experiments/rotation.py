@@ -24,6 +24,7 @@ from __future__ import annotations
 import sys
 import time
 from dataclasses import dataclass, replace
+from typing import ClassVar
 from pathlib import Path
 
 from ..classification.features import DEFAULT_FEATURES
@@ -47,6 +48,8 @@ class RotationConfig:
     registration : :func:`pcreg.register`'s options (its backend is set per unit from ``backends``).
     features : the classifier's features.
     """
+
+    report: ClassVar[str] = "rotation"  #: its report's name (:data:`~.reports.files.REPORT_NAMES`)
 
     data: str = "synthetic"
     angles: tuple[float, ...] = DEFAULT_ANGLES
@@ -261,7 +264,7 @@ def evaluate(config: RotationConfig, *, out: str | Path | None = None, force: bo
         sys.stderr.write(f"pcreg: note: {line}\n")
     results = evaluate_units(units, run_unit, config, summarise=summarise, out=out, force=force, executor=executor,
                              recorder=recorder, desc="rotation", show_progress=show_progress, kept=kept,
-                             data_notes=data_notes, report="rotation")
+                             data_notes=data_notes)
     return replace(results, notes=notes) if notes else results
 
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 from ..classification.features import DEFAULT_FEATURES
 from .results import Results
@@ -69,6 +69,8 @@ class SequenceConfig:
     is chosen on, a fixed weight, the prior's mixing and blur (:class:`SequenceFusion`). registration (its
     backend is set per unit from ``backends``), features: the pipeline (:class:`pcreg.pipeline.PipelineConfig`).
     """
+
+    report: ClassVar[str] = "sequence"  #: its report's name (:data:`~.reports.files.REPORT_NAMES`)
 
     data: str = "synthetic"
     increments: tuple[int, ...] = DEFAULT_INCREMENTS
@@ -213,7 +215,7 @@ def evaluate(config: SequenceConfig, *, out: str | Path | None = None, force: bo
     plan = plan_units(config, list(datasets))
     results = evaluate_units(plan, run_unit, config, summarise=summarise, out=out, force=force, executor=executor,
                              recorder=recorder, desc="sequence", show_progress=show_progress, kept=kept,
-                             data_notes=data_notes, report="sequence")
+                             data_notes=data_notes)
     units = results.units
     if units and not any(u["pairs"] for u in units):  # a report without a number is the input's fault
         if out is not None:  # nothing kept: the corrected command resumes nothing and is not refused

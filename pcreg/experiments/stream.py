@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -70,6 +71,8 @@ class StreamConfig:
         frames from ``keys``, the first by default); the label files are read through the table (CamVid's
         own ids with ``camvid11``). None: ground and obstacle.
     """
+
+    report: ClassVar[str] = "stream"  #: its report's name (:data:`~.reports.files.REPORT_NAMES`)
 
     data: str = "synthetic"
     frames: int | None = None
@@ -353,7 +356,7 @@ def evaluate(config: StreamConfig, *, out=None, force: bool = False, executor=No
                 raise InputError(f"clip {clip}: {exc}") from None
     return evaluate_units(plan_units(config, list(datasets)), run_unit, config, summarise=summarise, out=out,
                           force=force, executor=executor, recorder=recorder, show_progress=show_progress, kept=kept,
-                          data_notes=data_notes, report="stream",
+                          data_notes=data_notes,
                           desc=Tally("stream", "frame", lambda u: (len(datasets[u.dataset]) - 1) * len(config.methods)))
 
 

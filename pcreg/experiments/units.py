@@ -434,7 +434,7 @@ def for_workers(config: Any) -> Any:
 def evaluate_units(units: list, run_unit, config: Any, *, summarise, out: str | Path | None = None,
                    force: bool = False, executor=None, recorder=NULL_RECORDER, desc: "str | Tally" = "",
                    show_progress: bool | None = None, kept: Callable[[Unit, dict], bool] | None = None,
-                   data_notes: tuple[str, ...] = (), report: str | None = None) -> Results:
+                   data_notes: tuple[str, ...] = ()) -> Results:
     """The body every resumable evaluation shares: run the units not finished in ``out/units`` (all of
     them without ``out``; ``kept``, ``desc``: as :func:`run_resumable`), summarise their results in order (``summarise(config, results)``), and add
     the presets' real counterparts, the number of resumed units, the wall time and ``data_notes`` (:func:`say_damage`'s)."""
@@ -444,7 +444,7 @@ def evaluate_units(units: list, run_unit, config: Any, *, summarise, out: str | 
 
     t0 = time.perf_counter()
     cfg_dict = plain_config(config)
-    store = UnitStore(out, cfg_dict, force=force, report=report) if out is not None else None
+    store = UnitStore(out, cfg_dict, force=force, report=getattr(config, "report", None)) if out is not None else None
     done, resumed = run_resumable(units, run_unit, store=store, cfg_dict=cfg_dict, recorder=recorder,
                                   executor=executor, desc=desc, show_progress=show_progress, kept=kept)
     results = summarise(config, [done[u.key] for u in units])

@@ -171,10 +171,45 @@ def viz_dir() -> Path:
     raise PcregError("the report page's files (viz/) are missing from this installation of pcreg")
 
 
+#: Connections answered at once, each on a thread of its own: as many as wait to be accepted (a browser opens at most
+#: six to one server). One more is answered 503 and closed at once: 5,000 connections opened and left idle held
+#: 5,000 threads until each one's :data:`IDLE_TIMEOUT`.
+MAX_CONNECTIONS = 128
+_BUSY_BODY = b"the server has too many open connections\n"
+_BUSY = (b"HTTP/1.1 503 Service Unavailable\r\nContent-Type: text/plain; charset=utf-8\r\nX-Content-Type-Options: nosniff\r\n"
+         b"Content-Length: %d\r\nRetry-After: 1\r\nConnection: close\r\n\r\n%s" % (len(_BUSY_BODY), _BUSY_BODY))
+
+
 class _Server(ThreadingHTTPServer):
     daemon_threads = True
     allow_reuse_address = REUSE_ADDRESS
     request_queue_size = 128  # connections waiting to be accepted (socketserver's 5 left a burst of them retrying for seconds)
+
+    def server_activate(self) -> None:
+        super().server_activate()
+        self._slots = threading.BoundedSemaphore(MAX_CONNECTIONS)  # read when the server starts listening
+
+    def process_request(self, request, client_address) -> None:
+        """A thread for the connection while fewer than :data:`MAX_CONNECTIONS` are open; else 503, closed."""
+        if not self._slots.acquire(blocking=False):
+            try:
+                request.settimeout(1.0)  # a few bytes into a new connection's empty buffer: never waits, but bounded
+                request.sendall(_BUSY)
+            except OSError:
+                pass
+            self.shutdown_request(request)
+            return
+        try:
+            super().process_request(request, client_address)
+        except BaseException:
+            self._slots.release()  # no thread started to release it
+            raise
+
+    def process_request_thread(self, request, client_address) -> None:
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            self._slots.release()
 
     def handle_error(self, request, client_address) -> None:
         """A browser that went away (a connection reset or closed while its request was read or answered) is

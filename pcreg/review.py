@@ -209,18 +209,18 @@ def read_review(folder: str | Path) -> RunReview:
         ious.append(None if t in keys else step_class_iou(steps[n].get("predicted_iou"), steps_path, n))
         truth.append(None if t in keys else StepTruth(scored, step_class_iou(steps[n].get("iou"), steps_path, n, "iou")))
     return RunReview(folder, source, kind, tuple(names), tuple(stems), keys, tuple(errors),
-                     _suggested(folder, names, stems), has_confidence(folder, run), selection.to_dict(), table,
+                     _suggested(folder, names, stems, keys), has_confidence(folder, run), selection.to_dict(), table,
                      tuple(ious), tuple(truth), len(frames) if isinstance(frames, FolderFrames) else None,
                      state.get("gaps"), state.get("damaged"), state.get("notes"))
 
 
-def _suggested(folder: Path, names: list[str], stems: list[str]) -> tuple[tuple[int, float | None], ...]:
+def _suggested(folder: Path, names: list[str], stems: list[str], keys: frozenset[int]) -> tuple[tuple[int, float | None], ...]:
     """The run's frames that ``suggest.txt`` names (by name or stem, :func:`pcreg.runs.files.read_suggestions`),
-    as positions, in its order, with the predicted error given there."""
+    as positions, in its order, with the predicted error given there; a key frame (labelled since) is none to label."""
     from .runs.files import read_suggestions
 
     where = {**{s: t for t, s in enumerate(stems)}, **{n: t for t, n in enumerate(names)}}
-    return tuple((where[name], error) for name, error in read_suggestions(folder, set(where)))
+    return tuple((where[name], error) for name, error in read_suggestions(folder, set(where)) if where[name] not in keys)
 
 
 def overlay(image: np.ndarray, labels: np.ndarray, confidence: np.ndarray | None = None, *,

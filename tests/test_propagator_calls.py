@@ -245,3 +245,41 @@ def test_a_ctrl_c_in_a_kernel_of_the_public_functions_is_a_keyboard_interrupt(mo
             call()
     with pytest.raises(KeyboardInterrupt):
         interruptible(kernel)()
+
+
+def test_a_step_interrupted_after_its_report_leaves_the_last_report_as_it_was(tmp_path, monkeypatch):
+    """A Ctrl-C late in a step (after its report was made) rewound the stream but left ``last`` the report of the step
+    that did not happen."""
+    frames, labels, prop = _stream(tmp_path)
+    prop.step(frames[1])
+    before = prop.last
+
+    def late(self, labels):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(Propagator, "table_labels", late)
+    with pytest.raises(KeyboardInterrupt):
+        prop.step(frames[2])
+    monkeypatch.undo()
+    assert prop.last is before and prop.last.frame == 1
+    assert prop.step(frames[2]) is not None and prop.last.frame == 2
+
+
+def test_a_report_and_a_dense_result_equal_their_copies():
+    """``==`` of a StepReport or a DenseRegistrationResult and its copy raised numpy's "truth value of an array is
+    ambiguous": the arrays are compared by their values."""
+    import cv2
+
+    import pcreg
+
+    frames = pcreg.synthetic("syn1a", 2, 0, width=128, height=96)
+    result = pcreg.register_dense(frames[0].image, frames[1].image)
+    assert result == copy.deepcopy(result) and result == pickle.loads(pickle.dumps(result))
+    assert hash(result) == hash(copy.deepcopy(result))
+    other = copy.deepcopy(result)
+    object.__setattr__(other, "field", other.field + 1)
+    assert result != other
+    prop = Propagator.from_key_frame(frames[0].image, frames[0].labels)
+    prop.step(cv2.GaussianBlur(frames[1].image, (3, 3), 0))
+    report = prop.last
+    assert report == copy.deepcopy(report) and report == pickle.loads(pickle.dumps(report)) and report != 1

@@ -32,21 +32,23 @@ def test_frames_too_small_for_dis_are_labelled_without_the_second_motion(tmp_pat
         dis_field(img, img, preset="ultrafast")
 
 
-def test_a_persons_steps_jsonl_in_a_folder_of_no_run_is_refused_not_written_over(tmp_path, capsys):
+@pytest.mark.parametrize("held", ["steps.jsonl"])
+def test_a_persons_steps_jsonl_in_a_folder_of_no_run_is_refused_not_written_over(tmp_path, capsys, held):
     """A file named steps.jsonl of a person's in a new --out was replaced by the run's steps without a word. No run
     leaves it with lines and no run.json (it writes it empty, then its state), so it is refused, kept; --force
     writes over it."""
     folder, key = drifting_frames(tmp_path / "frames", (48, 64))
     out = tmp_path / "out"
     out.mkdir()
-    (out / "steps.jsonl").write_text('{"my": "notes"}\n')
+    (out / held).write_text('{"my": "notes"}\n')
     run = ["run", str(folder), "--labels", str(key), "--out", str(out)]
     assert main(run) == 2
     err = one_line_errors(capsys)
-    assert len(err) == 1 and f"{out / 'steps.jsonl'}: this run would write over it" in err[0] and "--force" in err[0], err
-    assert (out / "steps.jsonl").read_text() == '{"my": "notes"}\n' and [p.name for p in out.iterdir() if p.name != ".pcreg.lock"] == ["steps.jsonl"]
+    assert len(err) == 1 and f"{out / held}: this run would write over it" in err[0] and "--force" in err[0], err
+    assert (out / held).read_text() == '{"my": "notes"}\n' and [p.name for p in out.iterdir() if p.name != ".pcreg.lock"] == [held]
     assert main([*run, "--force"]) == 0
-    assert '"my"' not in (out / "steps.jsonl").read_text() and (out / "run.json").is_file()
+    assert not (out / held).exists() or '"my"' not in (out / held).read_text()
+    assert (out / "run.json").is_file()
 
 
 def test_an_output_folder_whose_files_are_in_the_way_is_refused_in_one_line(tmp_path, capsys):

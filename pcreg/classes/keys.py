@@ -373,7 +373,13 @@ def decode_key_labels(data: bytes, name: str, table: ClassTable, mapping: str = 
     if mapping == "davis":
         return _one_object(data, name, limit=limit)
     if mapping == "camvid":
-        raw = _through_table(data, name, CAMVID11, limit=limit)
+        try:
+            raw = _through_table(data, name, CAMVID11, limit=limit)
+        except InputError as exc:
+            own = _own_palette(data, name, table, limit=limit)  # pcreg run's own label PNG: the table's ids already
+            if own is None:
+                raise exc from None
+            return own
         lut = mapping_lut("camvid")
         assert lut is not None
         return lut[raw]
@@ -392,6 +398,19 @@ def decode_key_labels(data: bytes, name: str, table: ClassTable, mapping: str = 
         if hint and (table.agrees(DEFAULT_TABLE) or mask):
             raise InputError(f"{exc}{hint}") from None
         raise
+
+
+def _own_palette(data: bytes, name: str, table: ClassTable, *, limit: int | None) -> np.ndarray | None:
+    """The class ids of a palette PNG in ``table``'s colours, as pcreg writes its labels (``--mapping camvid`` writes
+    ground and obstacle in ``lagr``'s): a run's label PNG read back as a key frame's; None for any other image."""
+    from .png import decode_label_png, is_palette_png
+
+    if not is_palette_png(data):
+        return None
+    try:
+        return decode_label_png(data, name, table, limit=limit)
+    except InputError:
+        return None
 
 
 def read_key_labels(path: str | Path, table: ClassTable, mapping: str = "none", *,

@@ -74,6 +74,18 @@ class StepReport:
     trust_summary: dict | None = None
     log_odds: np.ndarray | None = field(default=None, repr=False)
 
+    def __eq__(self, other: object) -> bool:
+        """Field by field, the arrays by their values: a copy, or a report unpickled, equals its original (the
+        generated ``==`` compared the arrays as truth values, and raised)."""
+        from ..registration.result import _fields_alike
+
+        if other.__class__ is not self.__class__:
+            return NotImplemented
+        return _fields_alike(self, other)
+
+    def __hash__(self) -> int:
+        return hash((self.frame, self.reference, self.fallback))
+
     @property
     def registered(self) -> bool:
         return self.registration is not None

@@ -337,11 +337,11 @@ class Propagator(OneStream):
         full = PreparedFrame.of(image, name="frame", shape=size.frame)
         frame, bars = size.shrunk(full), self.bars if self.bars is not None and self.bars.held(full.rgb) else None
         before = (self._frame, self._carry, self._chain, self.scene,
-                  None if self._learner is None else self._learner.snapshot())
+                  None if self._learner is None else self._learner.snapshot(), self.last)
         try:
             return self._step(key, frame, t_start, bars)
         except BaseException:
-            self._frame, self._carry, self._chain = before[:3]
+            self._frame, self._carry, self._chain, self.last = *before[:3], before[5]
             if self._key_scene is not None:
                 self._key_scene.restore(before[3])
             if self._learner is not None:

@@ -120,6 +120,7 @@ class Run:
         self.truth, self.confidence = truth, confidence
         self.state: dict = {}
         self.gaps = GapMarks(self)  # where the video skips frames by its times: said, and counted in run.json
+        self.resumed = False  # whether ``out`` held a run of these options (:meth:`open_key`, :meth:`open_keys`)
         self.earlier = Earlier(self.out)  # an earlier run a run started over replaces, kept until it is past bad input
 
     # -- labelling ----------------------------------------------------------------------------------
@@ -187,6 +188,7 @@ class Run:
             if named_otherwise(out, self.state):  # its inputs found in new places (moved): kept
                 self.commit()
             return self._say_done(request, 0, [0], start=start)
+        self._drop_suggestions()
         if start == 1:
             todo: Iterator = itertools.chain([second], decoded)
         else:
@@ -233,6 +235,8 @@ class Run:
         with inputs_placed(self.out, self.identity, force=request.force):
             job.start(force=request.force)
         choose_kept(job, self.out)
+        if not job.finished:
+            self._drop_suggestions()
         if job.finished and request.record is not None and not request.force:
             nothing_to_record(request.record)  # an existing recording is this finished run's: nothing to add to it
             self._say_done(request, 0, sorted(keys))
@@ -253,6 +257,13 @@ class Run:
                 check_kept(self.state, frames, self.out)
             self._say_done(request, done, sorted(keys))
 
+    def _drop_suggestions(self) -> None:
+        """Remove an earlier run's suggest.txt before frames are labelled again: chosen from the predicted errors they
+        replace, it may name a frame that is a key frame now (written anew at the end with ``--suggest``). A first run
+        keeps a person's own file of that name, as it keeps every file it did not write."""
+        if self.resumed:
+            (self.out / SUGGEST).unlink(missing_ok=True)
+
     def _say_done(self, request: RunRequest, done: int, keys: list[int], *, start: int | None = None) -> None:
         """Print what the run did (``done`` frames now; ``start``: the first of them, a run from one label image), write the suggestions (``keys``: the key frames' positions)."""
         import sys
@@ -260,15 +271,17 @@ class Run:
         out, s = self.out, self.state
         self.gaps.summary()
         if done == 0:
+            suggested = self.suggest(request.suggest, keys)  # written before a line is printed: a closed stdout loses no file
             if start is None and not s.get("lines"):  # no step ever: every frame is a key frame
                 print(f"{out}: every frame is a key frame ({len(keys)}): their labels are written as given, none carried")
             else:
                 print(f"{out}: all frames already done" if start is None else f"{out}: all {start} frames already done")
-            self.suggest(request.suggest, keys)
+            if suggested:
+                print(suggested)
             return
         steps = self._predicting_steps()  # read once, for the suggestions and the closing lines
+        suggested = self.suggest(request.suggest, keys, steps)
         if start is not None:
-            self.suggest(request.suggest, keys, steps)
             msg = f"{done} frame(s) labelled into {out}" + (f" ({start - 1 + done} with the {start - 1} before)" if start > 1 else "")
             failed = "those frames fuse the key frame's labels unwarped; "
         else:
@@ -283,14 +296,15 @@ class Run:
             msg += "\nerror against the truth: none, the truth labels of the frames labelled are all unknown"
         msg += self.predicted_summary(truth=bool(s.get("truth")), steps=steps)
         print(msg, file=sys.stdout)
-        if start is None:
-            self.suggest(request.suggest, keys, steps)
+        if suggested:
+            print(suggested)
 
     # -- opening and resuming -----------------------------------------------------------------------
 
     def open_key(self, labels: np.ndarray, *, force: bool = False) -> int:
         """Open (or resume) a run from one label image, the key frame's ``labels``; the first frame still to do."""
         state = open_state(self.out, self.identity, force=force, frames=self.frames)
+        self.resumed = state is not None  # an earlier run's, whose suggest.txt a run that labels removes
         digest = label_digest(labels)
         if state is not None:
             self.state = state
@@ -396,6 +410,7 @@ class Run:
         are ``plan`` ({fingerprint: :class:`~pcreg.pipeline.engine.Stretch`}): the steps of stretches no
         longer in the plan forgotten, the key frames' labels written where they changed."""
         state = open_state(self.out, self.identity, force=force, frames=self.frames)
+        self.resumed = state is not None  # an earlier run's, whose suggest.txt a run that labels removes
         if state is not None:
             self.state = state
         else:
@@ -525,22 +540,23 @@ class Run:
             return
         self.state["truth"] = add_rates({k: sum(p["truth"][k] for p in parts) for k in empty_counts()})
 
-    def suggest(self, count: int | None, keys: list[int], steps: dict[int, dict] | None = None) -> None:
+    def suggest(self, count: int | None, keys: list[int], steps: dict[int, dict] | None = None) -> str | None:
         """``OUT/suggest.txt``: the ``count`` frames to label next, best first, with their predicted error
         (:func:`pcreg.runs.files.write_suggestions`), from the predicted errors in steps.jsonl (:meth:`predicted` of
-        ``steps``; :func:`pcreg.pipeline.keyframes.suggest`); ``keys``: the key frames' positions."""
+        ``steps``; :func:`pcreg.pipeline.keyframes.suggest`); ``keys``: the key frames' positions. The line that says
+        where it is, to print once the run's summary is (None without ``count``)."""
         from ..pipeline.keyframes import suggest
         from .files import write_suggestions
 
         if count is None:
-            return
+            return None
         predicted = self.predicted(steps)
         try:
             chosen = suggest(predicted, keys, count, max([*predicted, *keys]) + 1)
         except InputError as exc:
             raise InputError(f"--suggest {count}: {exc}") from None
         path = write_suggestions(self.out, [(self.frames.stem(t), predicted[t]) for t in chosen])
-        print(f"the {count} frame(s) to label next, best first: {path}")
+        return f"the {count} frame(s) to label next, best first: {path}"
 
     def predicted(self, steps: dict[int, dict] | None = None) -> dict[int, float]:
         """{frame: its predicted error, % of its pixels} of every step in steps.jsonl that has one (a key frame has

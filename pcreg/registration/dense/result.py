@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..motion import field_from_matrix
-from ..result import RegistrationResult
+from ..result import RegistrationResult, _fields_alike
 
 __all__ = ["DenseIteration", "DenseRegistrationResult"]
 
@@ -66,6 +66,16 @@ class DenseRegistrationResult:
     converged: bool = True
     grid: np.ndarray | None = None
     info: dict = field(default_factory=dict, compare=False)
+
+    def __eq__(self, other: object) -> bool:
+        """Field by field, the arrays by their values: a copy, or a result unpickled, equals its original (the
+        generated ``==`` compared the arrays as truth values, and raised)."""
+        if other.__class__ is not self.__class__:
+            return NotImplemented
+        return _fields_alike(self, other)
+
+    def __hash__(self) -> int:
+        return hash((self.backend, self.iterations, self.matrix.shape))
 
     def __post_init__(self) -> None:
         for name in ("matrix", "field", "confidence", "grid"):

@@ -17,18 +17,27 @@ from _runs import in_a_terminal, kill_at_commit, one_line_errors, timeless
 from pcreg.export import read_labels
 
 
-@pytest.fixture(scope="module")
-def frames():
+def six_frames() -> list:
+    """The six synthetic frames these runs label (f0 to f5)."""
     return pcreg.synthetic("syn1a", 6, 0, width=160, height=120)
 
 
-@pytest.fixture()
-def folder(tmp_path, frames):
-    d = tmp_path / "frames"
+def frames_folder(d, frames):
+    """``frames`` written to the new folder ``d`` as f0.png, f1.png, ..."""
     d.mkdir()
     for i, f in enumerate(frames):
         cv2.imwrite(str(d / f"f{i}.png"), f.image[:, :, ::-1])
     return d
+
+
+@pytest.fixture(scope="module")
+def frames():
+    return six_frames()
+
+
+@pytest.fixture()
+def folder(tmp_path, frames):
+    return frames_folder(tmp_path / "frames", frames)
 
 
 def _video(tmp_path, frames):

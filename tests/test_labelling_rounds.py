@@ -14,24 +14,17 @@ import cv2
 import numpy as np
 import pytest
 
-import pcreg
 from pcreg.cli import main
 from pcreg.export import read_labels, read_run
 from pcreg.review import read_review
-
-
-@pytest.fixture(scope="module")
-def frames():
-    return pcreg.synthetic("syn1a", 6, 0, width=160, height=120)
+from test_keyframes_run import frames_folder, six_frames
 
 
 @pytest.fixture()
-def folder(tmp_path, frames):
-    d = tmp_path / "frames"
-    d.mkdir()
-    for i, f in enumerate(frames):
-        cv2.imwrite(str(d / f"f{i}.png"), f.image[:, :, ::-1])
-    return d
+def clip(tmp_path):
+    """The six synthetic frames of the runs from key frames, and the folder they are written to."""
+    frames = six_frames()
+    return frames, frames_folder(tmp_path / "frames", frames)
 
 
 def _keys(path, frames, which, lut=None):
@@ -41,7 +34,8 @@ def _keys(path, frames, which, lut=None):
     return path
 
 
-def test_a_round_that_changes_the_key_frames_leaves_no_suggestions_of_the_round_before(tmp_path, frames, folder, capsys):
+def test_a_round_that_changes_the_key_frames_leaves_no_suggestions_of_the_round_before(tmp_path, clip, capsys):
+    frames, folder = clip
     keys, out = _keys(tmp_path / "keys", frames, [0]), tmp_path / "out"
     run = ["run", str(folder), "--labels", str(keys), "--out", str(out)]
     assert main([*run, "--suggest", "2"]) == 0
@@ -60,7 +54,8 @@ def test_a_round_that_changes_the_key_frames_leaves_no_suggestions_of_the_round_
     capsys.readouterr()
 
 
-def test_suggest_txt_is_written_though_stdout_is_closed_before_the_run_ends(tmp_path, frames, folder):
+def test_suggest_txt_is_written_though_stdout_is_closed_before_the_run_ends(tmp_path, clip):
+    frames, folder = clip
     keys, out = _keys(tmp_path / "keys", frames, [0, 3]), tmp_path / "out"
     proc = subprocess.Popen([sys.executable, "-m", "pcreg", "run", str(folder), "--labels", str(keys), "--out", str(out),
                              "--suggest", "2"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
@@ -73,10 +68,11 @@ def test_suggest_txt_is_written_though_stdout_is_closed_before_the_run_ends(tmp_
     assert len(lines) == 2 and all(line.split("\t")[0] in {"f1", "f2", "f4", "f5"} for line in lines)
 
 
-def test_a_frame_of_a_mapping_camvid_run_is_a_key_frame_of_the_next_round_as_it_is(tmp_path, frames, folder):
+def test_a_frame_of_a_mapping_camvid_run_is_a_key_frame_of_the_next_round_as_it_is(tmp_path, clip):
     """`--mapping camvid` reads CamVid's ids as ground and obstacle, and writes its labels in ``lagr``'s palette: one
     of them, given as a key frame's labels (a person correcting the frame the run predicted), was read through
     ``camvid11``'s palette and refused ("another class table?")."""
+    frames, folder = clip
     camvid = np.full(256, 11, np.uint8)
     camvid[[0, 1]] = [3, 1]  # ground as road, obstacle as building, unknown as void
     keys, out = _keys(tmp_path / "keys", frames, [0], camvid), tmp_path / "out"
@@ -89,8 +85,8 @@ def test_a_frame_of_a_mapping_camvid_run_is_a_key_frame_of_the_next_round_as_it_
     assert json.loads((out / "run.json").read_text())["run"]["mapping"] == "camvid"
 
 
-def test_the_review_of_a_run_stopped_between_its_stretches_says_which_frames_it_does_not_show(tmp_path, frames, folder,
-                                                                                               monkeypatch, capsys):
+def test_the_review_of_a_run_stopped_between_its_stretches_says_which_frames_it_does_not_show(tmp_path, clip, monkeypatch, capsys):
+    frames, folder = clip
     from pcreg.runs.run import Run
 
     keys, out = _keys(tmp_path / "keys", frames, [0, 2, 5]), tmp_path / "out"
@@ -120,10 +116,10 @@ def test_the_review_of_a_run_stopped_between_its_stretches_says_which_frames_it_
     assert f"{out} holds {exported} of the 6 frames the run chose: it is unfinished" in err, err
 
 
-def test_a_round_without_the_truth_of_the_last_is_refused_as_other_options_not_as_inputs_moved(tmp_path, frames, folder,
-                                                                                                capsys):
+def test_a_round_without_the_truth_of_the_last_is_refused_as_other_options_not_as_inputs_moved(tmp_path, clip, capsys):
     """Leaving ``--truth`` out of a round was refused as a run "over" the truth folder, "not over these inputs", its
     remedy said twice: the truth is an option left out, not an input moved."""
+    frames, folder = clip
     keys, truth, out = _keys(tmp_path / "keys", frames, [0]), _keys(tmp_path / "truth", frames, range(6)), tmp_path / "out"
     run = ["run", str(folder), "--labels", str(keys), "--out", str(out)]
     assert main([*run, "--truth", str(truth)]) == 0

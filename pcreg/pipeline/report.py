@@ -9,6 +9,8 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
+from ..registration.result import FieldsCompared
+
 if TYPE_CHECKING:
     from .trust import TrustMaps
 
@@ -28,8 +30,8 @@ class _Result(Protocol):
     def to_dict(self) -> dict: ...
 
 
-@dataclass(frozen=True)
-class StepReport:
+@dataclass(frozen=True, eq=False)
+class StepReport(FieldsCompared):
     """What one :meth:`~pcreg.pipeline.stream.Propagator.step` did.
 
     frame : steps since the last :meth:`~Propagator.reset` (1 for the first step).
@@ -73,15 +75,6 @@ class StepReport:
     trust: "TrustMaps | PriorTerms | None" = field(default=None, repr=False)
     trust_summary: dict | None = None
     log_odds: np.ndarray | None = field(default=None, repr=False)
-
-    def __eq__(self, other: object) -> bool:
-        """Field by field, the arrays by their values: a copy, or a report unpickled, equals its original (the
-        generated ``==`` compared the arrays as truth values, and raised)."""
-        from ..registration.result import _fields_alike
-
-        if other.__class__ is not self.__class__:
-            return NotImplemented
-        return _fields_alike(self, other)
 
     def __hash__(self) -> int:
         return hash((self.frame, self.reference, self.fallback))

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..motion import field_from_matrix
-from ..result import RegistrationResult, _fields_alike
+from ..result import FieldsCompared, RegistrationResult
 
 __all__ = ["DenseIteration", "DenseRegistrationResult"]
 
@@ -36,8 +36,8 @@ class DenseIteration:
                 f"points={self.points}, inliers={self.inliers}, rms={self.rms:.3g})")
 
 
-@dataclass(frozen=True, repr=False)
-class DenseRegistrationResult:
+@dataclass(frozen=True, repr=False, eq=False)
+class DenseRegistrationResult(FieldsCompared):
     """A dense registration: the global transform and the field that refines it.
 
     matrix : (3, 3) float64 global ``T_ref_mov`` (the start of the dense step).
@@ -66,13 +66,6 @@ class DenseRegistrationResult:
     converged: bool = True
     grid: np.ndarray | None = None
     info: dict = field(default_factory=dict, compare=False)
-
-    def __eq__(self, other: object) -> bool:
-        """Field by field, the arrays by their values: a copy, or a result unpickled, equals its original (the
-        generated ``==`` compared the arrays as truth values, and raised)."""
-        if other.__class__ is not self.__class__:
-            return NotImplemented
-        return _fields_alike(self, other)
 
     def __hash__(self) -> int:
         return hash((self.backend, self.iterations, self.matrix.shape))

@@ -82,6 +82,11 @@ def test_a_frame_of_a_mapping_camvid_run_is_a_key_frame_of_the_next_round_as_it_
     (keys / "f3.png").write_bytes((out / "f3.png").read_bytes())  # taken as it is, as a person would correct it
     assert main(run) == 0
     np.testing.assert_array_equal(read_labels(out / "f3.png"), predicted)
+    rgb = cv2.imread(str(out / "f4.png"), cv2.IMREAD_COLOR)  # another, saved again in RGB by an editor
+    cv2.imwrite(str(keys / "f4.png"), rgb)
+    predicted = read_labels(out / "f4.png")
+    assert main(run) == 0
+    np.testing.assert_array_equal(read_labels(out / "f4.png"), predicted)
     assert json.loads((out / "run.json").read_text())["run"]["mapping"] == "camvid"
 
 
@@ -128,3 +133,8 @@ def test_a_round_without_the_truth_of_the_last_is_refused_as_other_options_not_a
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"pcreg: error: {out} holds a run with other options (truth: '"), err
     assert err[0].endswith(" then, None now); use --force to start over or another --out"), err
+    moved = tmp_path / "moved"  # the frames moved, and an option changed: the remedy said once
+    folder.rename(moved)
+    assert main(["run", str(moved), "--labels", str(keys), "--out", str(out), "--truth", str(truth), "--weight", "3"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].count("another --out") == 1 and "weight: 2.0 then, 3.0 now" in err[0], err

@@ -44,10 +44,12 @@ def test_an_evaluation_into_a_folder_of_no_evaluation_holding_a_file_its_report_
     out.mkdir()
     (out / held).write_text("a person's own")
     (out / "notes.md").write_text("another of theirs")
+    (out / "config.json").write_text('{"project": "theirs"}')  # a config.json alone is anyone's, no evaluation's
     command = ["evaluate", experiment, *extra, "--out", str(out)]
     assert main(command) == 2
     err = one_line_errors(capsys)
     assert len(err) == 1 and f"{out / held}: the report would write over it" in err[0] and "--force" in err[0], err
-    assert sorted(p.name for p in out.iterdir() if p.name != ".pcreg.lock") == sorted([held, "notes.md"])
+    assert sorted(p.name for p in out.iterdir() if p.name != ".pcreg.lock") == sorted([held, "notes.md", "config.json"])
+    assert (out / "config.json").read_text() == '{"project": "theirs"}'
     assert main([*command, "--force"]) == 0
     assert (out / held).read_text() != "a person's own" and (out / "notes.md").read_text() == "another of theirs"

@@ -376,7 +376,7 @@ def decode_key_labels(data: bytes, name: str, table: ClassTable, mapping: str = 
         try:
             raw = _through_table(data, name, CAMVID11, limit=limit)
         except InputError as exc:
-            own = _own_palette(data, name, table, limit=limit)  # pcreg run's own label PNG: the table's ids already
+            own = _own_labels(data, name, table, limit=limit)  # pcreg run's own label PNG: the table's ids already
             if own is None:
                 raise exc from None
             return own
@@ -400,13 +400,12 @@ def decode_key_labels(data: bytes, name: str, table: ClassTable, mapping: str = 
         raise
 
 
-def _own_palette(data: bytes, name: str, table: ClassTable, *, limit: int | None) -> np.ndarray | None:
-    """The class ids of a palette PNG in ``table``'s colours, as pcreg writes its labels (``--mapping camvid`` writes
-    ground and obstacle in ``lagr``'s): a run's label PNG read back as a key frame's; None for any other image."""
-    from .png import decode_label_png, is_palette_png
+def _own_labels(data: bytes, name: str, table: ClassTable, *, limit: int | None) -> np.ndarray | None:
+    """The class ids of a label image in ``table``'s colours, a palette PNG as pcreg writes its labels (``--mapping
+    camvid`` writes ground and obstacle in ``lagr``'s) or saved again in RGB by an editor: a run's label PNG read
+    back as a key frame's; None for any other image."""
+    from .png import decode_label_png
 
-    if not is_palette_png(data):
-        return None
     try:
         return decode_label_png(data, name, table, limit=limit)
     except InputError:

@@ -306,7 +306,7 @@ def inputs_placed(out: Path, identity: dict | None, *, force: bool = False) -> I
         moved = [k for k in _INPUT_PATHS if k in then and isinstance(now[k], str) and then[k] != now[k]]
         if not moved:  # the same places, or an input not given now (--truth left out): no other project's inputs
             raise
-        said = str(exc).removesuffix("; use --force to start over")
+        said = str(exc).removesuffix("; use --force to start over or another --out").removesuffix("; use --force to start over")
         where = then[moved[0]]
         raise OutputError(f"{out} holds a run over {where}, not over these inputs: give another --out, or --force to "
                           f"start over (what is here is not what it read: {said})") from None

@@ -22,11 +22,13 @@ _CHECKED = ("stream", "sequence", "rotation")  # the reports with a checks.md
 
 def in_the_way(out: Path, experiment: str) -> Path | None:
     """A file in ``out`` that the report of ``experiment`` (a key of :data:`REPORT_NAMES`) would write over while
-    ``out`` holds no evaluation (no config.json, results.json, :data:`MANIFEST` or units/): a person's own
-    checks.md, say, no evaluation wrote; None when there is none."""
-    if not out.is_dir() or any((out / n).exists() or (out / n).is_symlink()
-                               for n in ("config.json", "results.json", MANIFEST, "units", "run.json")):
-        return None  # an evaluation's folder, or a run's (refused as one)
+    ``out`` holds no evaluation (no config.json beside a results.json, :data:`MANIFEST` or units/; a config.json alone
+    may be anyone's): a person's own checks.md, say, no evaluation wrote; None when there is none."""
+    def held(n: str) -> bool:
+        return (out / n).exists() or (out / n).is_symlink()
+
+    if not out.is_dir() or held("run.json") or (held("config.json") and any(map(held, ("results.json", MANIFEST, "units")))):
+        return None  # a run's folder (refused as one), or an evaluation's: its config.json beside its results or units
     names = REPORT_NAMES[experiment]
     for q in sorted(out.iterdir()):
         stem, suffix = q.stem, q.suffix.lower()

@@ -60,3 +60,33 @@ def test_a_signal_during_canny_is_raised_after_it(handled, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         clouds.image_cloud(image)
     assert len(returned) == 1  # Canny ran to its end; the interrupt came after it
+
+
+def test_a_signal_while_a_recording_stream_is_made_is_raised_once_it_is_whole(handled, monkeypatch):
+    """``pcreg demo`` stopped by SIGTERM as it began its recording printed, after "pcreg: interrupted", a traceback of
+    rerun's finalizer: the KeyboardInterrupt raised inside ``RecordingStream``'s constructor left it without its native
+    part (``'RecordingStream' object has no attribute 'inner'``)."""
+    import gc
+    import sys
+
+    import rerun.recording_stream as rs
+
+    from pcreg.recording.readback import whole_stream
+
+    made = rs.bindings.new_recording
+    unraisable = []
+
+    def made_signalled(*args, **kwargs):
+        inner = made(*args, **kwargs)
+        signal.raise_signal(signal.SIGINT)  # as when it lands while rerun makes its native stream
+        return inner
+
+    monkeypatch.setattr(rs.bindings, "new_recording", made_signalled)
+    monkeypatch.setattr(sys, "unraisablehook", unraisable.append)
+    with pytest.raises(KeyboardInterrupt):
+        whole_stream("pcreg-test", recording_id="interrupted")
+    gc.collect()
+    assert unraisable == []
+    _signals._RECEIVED.clear()
+    monkeypatch.undo()
+    assert whole_stream("pcreg-test", recording_id="again").inner is not None

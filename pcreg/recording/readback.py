@@ -59,6 +59,20 @@ def _reader(path: str | os.PathLike) -> Any:
         return RrdReader(str(path))
 
 
+def whole_stream(application_id: str, **options: Any):
+    """``rerun.RecordingStream(application_id, **options)``, made whole: a signal's KeyboardInterrupt raised inside
+    its constructor left one without its native part, whose finalizer then printed an AttributeError traceback after
+    "pcreg: interrupted". A signal while it is made is noted (:func:`pcreg._signals._shielded`), and raised once it is."""
+    import rerun as rr
+
+    from .._signals import _shielded, check_interrupted
+
+    with _shielded():
+        stream = rr.RecordingStream(application_id, **options)
+    check_interrupted()
+    return stream
+
+
 def end_stream(path: str | os.PathLike) -> None:
     """End the recording ``path``, which rerun has finished writing without a footer, with the end-of-stream
     message (an empty one, as rerun wrote before footers): what :func:`ended` tells a finished file by."""

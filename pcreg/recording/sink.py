@@ -26,7 +26,7 @@ from pcreg.recording import entities as E
 
 from ..errors import OutputError, StuckOutput
 from ..outputs import check_output
-from .readback import end_stream
+from .readback import end_stream, whole_stream
 
 __all__ = ["Sink", "JpegCache", "check_path", "DEFAULT_JPEG_QUALITY", "BATCH_SECONDS", "BATCH_BYTES"]
 
@@ -176,7 +176,7 @@ class Sink:
         self.application_id = application_id
         self.recording_id = recording_id or str(uuid.uuid4())
         batching = rr.ChunkBatcherConfig(flush_tick=BATCH_SECONDS, flush_num_bytes=BATCH_BYTES)
-        self._rec = rr.RecordingStream(application_id, recording_id=self.recording_id, batcher_config=batching)
+        self._rec = whole_stream(application_id, recording_id=self.recording_id, batcher_config=batching)
         self.kind = kind
         self._embed_blueprint = embed_blueprint
         self._entities: dict[str, set[str]] = {}

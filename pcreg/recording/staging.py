@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from . import blueprint as B
-from .readback import read_entities, read_kind, snapshot, unfinished_files_allowed
+from .readback import read_entities, read_kind, snapshot, unfinished_files_allowed, whole_stream
 
 __all__ = ["Staged", "stage", "labels_for"]
 
@@ -89,7 +89,7 @@ def _stage(paths: list[str | os.PathLike], copies: list[Path], out: Path) -> Sta
     shown_on = timelines.pop() if len(timelines) == 1 else B.timeline("sequence")
     entities = [read_entities(c, timeline=shown_on) for c in copies]
     if len(paths) == 1:
-        stream = rr.RecordingStream(stores[0].application_id, recording_id=stores[0].recording_id)
+        stream = whole_stream(stores[0].application_id, recording_id=stores[0].recording_id)
         has_views = bool(B.panes(kinds[0], entities[0]))  # else (nothing to show) the viewer chooses
         stream.save(out, default_blueprint=B.blueprint(kinds[0], entities[0]) if has_views else None)
         stream.send_chunks(readers[0].stream(store=stores[0]))
@@ -99,7 +99,7 @@ def _stage(paths: list[str | os.PathLike], copies: list[Path], out: Path) -> Sta
 
     labels = labels_for(paths)
     bp = B.compare_blueprint(list(zip(labels, kinds, entities)))
-    stream = rr.RecordingStream(stores[0].application_id, recording_id=f"compare-{uuid.uuid4()}")
+    stream = whole_stream(stores[0].application_id, recording_id=f"compare-{uuid.uuid4()}")
     stream.save(out, default_blueprint=bp)
     stream.send_recording_name("compare " + ", ".join(labels))
     series_names: list[tuple[str, list[str]]] = []

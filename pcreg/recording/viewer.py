@@ -443,13 +443,14 @@ def send_here(recording: str, host: str, grpc_port: int) -> None:
     """:func:`_send`'s work, in this process."""
     import warnings
 
-    import rerun as rr
     from rerun.chunk import RrdReader
+
+    from .readback import whole_stream
 
     with warnings.catch_warnings():  # a file without rerun's footer (an earlier rerun's) is read whole: said, not a problem
         warnings.simplefilter("ignore")
         store = RrdReader(str(recording)).recordings()[0]
-    stream = rr.RecordingStream(store.application_id, recording_id=store.recording_id)
+    stream = whole_stream(store.application_id, recording_id=store.recording_id)
     stream.connect_grpc(f"rerun+http://{f'[{host}]' if ':' in host else host}:{grpc_port}/proxy")
     stream.log_file_from_path(recording)  # its stores as they are in the file, the blueprint among them
     stream.flush()

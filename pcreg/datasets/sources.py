@@ -236,10 +236,10 @@ class FolderFrames:
 
 
 class VideoFrames:
-    """The frames of a video file, decoded one at a time with PyAV; frame ``i`` (from 0) is named
-    ``{i:06d}``. Opening reads the container's header: a file FFmpeg cannot open, that is not an MP4,
-    QuickTime (3GP), AVI, Matroska or MPEG-TS file, or that holds no video stream is refused here; a truncated or
-    damaged file, a frame of another size, or a ``start`` past the end is refused where decoding meets it."""
+    """The frames of a video file, decoded one at a time with PyAV; frame ``i`` (from 0) is named ``{i:06d}``. Opening
+    reads the container's header: a file FFmpeg cannot open, that is not an MP4, QuickTime (3GP), AVI, Matroska or
+    MPEG-TS file, or that holds no video stream (cover art is none) is refused here; a truncated or damaged file, a
+    frame of another size, or a ``start`` past the end is refused where decoding meets it."""
 
     kind = "video"
 
@@ -284,8 +284,7 @@ class VideoFrames:
         except (av.FFmpegError, UnicodeDecodeError) as exc:
             from .damage import missing_index
 
-            unfinished = missing_index(self.path)
-            if unfinished is not None:
+            if (unfinished := missing_index(self.path)) is not None:
                 raise InputError(unfinished) from None
             reason = getattr(exc, "strerror", None) or str(exc)
             raise InputError(f"{self.path}: not a video FFmpeg can read ({reason}): not a video, or truncated or "
@@ -293,20 +292,17 @@ class VideoFrames:
         fmt = container.format.name
         moving = [v for v in container.streams.video if not _attached(v)]  # cover art is no video
         if fmt not in _CONTAINERS:
-            video = bool(moving) and not fmt.endswith("_pipe")  # an image renamed, a song's cover: no video
             container.close()
-            if video:
+            if moving and not fmt.endswith("_pipe"):  # an image renamed, a song's cover: no video
                 raise InputError(f"{self.path}: a video in a container pcreg does not read (FFmpeg reads it as {fmt}, "
                                  f"not as {', '.join(_CONTAINERS.values())}); {convert_hint(self.path)}")
             raise InputError(f"{self.path}: not a video (FFmpeg reads it as {fmt}, not as {', '.join(_CONTAINERS.values())})")
         if not moving:
-            art = bool(container.streams.video)
-            kinds = sorted({s.type for s in container.streams if s.type != "video"})
+            kinds, art = sorted({s.type for s in container.streams if s.type != "video"}), bool(container.streams.video)
             container.close()
-            if art:
-                sound = " of a recording of sound" if kinds == ["audio"] else ""
-                raise InputError(f"{self.path}: holds no video stream, only a still picture attached to it (cover art{sound}), "
-                                 "not frames")
+            if art:  # a recording's cover
+                raise InputError(f"{self.path}: holds no video stream, only a still picture attached to it (cover art"
+                                 f"{' of a recording of sound' if kinds == ['audio'] else ''}), not frames")
             held = f"only {' and '.join(kinds)} streams{': a recording of sound alone' if kinds == ['audio'] else ''}, or" if kinds else "no stream at all:"
             raise InputError(f"{self.path}: holds no video stream ({held} an empty or damaged {_CONTAINERS[fmt]} file)")
         if container.streams.video[0].codec_context is None:  # PyAV opens no decoder for a codec FFmpeg does not know
@@ -325,8 +321,7 @@ class VideoFrames:
                 f"with FFmpeg's {FILTER[0]} as they are read")
 
     def streams_note(self) -> str | None:
-        """A line for the user when the file holds more than one video stream (a player may show another than the
-        first, which pcreg reads); else None."""
+        """A line for the user when the file holds more than one video stream (pcreg reads the first); else None."""
         if len(self.streams) < 2:
             return None
         (index, w, h), others = self.streams[0], self.streams[1:]
@@ -566,6 +561,7 @@ def read_ahead(frames: Iterator[_Item]) -> Generator[_Item, None, None]:
     works on this one (a 640x480 PNG takes about 14 ms to decode; PyAV and OpenCV release the GIL while
     they decode). An error reading a frame comes out where that frame would have; closing this
     iterator (the caller stops, or is interrupted) stops the thread after the frame it holds."""
+    import contextlib
     import queue
     import threading
 
@@ -599,8 +595,6 @@ def read_ahead(frames: Iterator[_Item]) -> Generator[_Item, None, None]:
                 return
     finally:
         stop.set()
-        try:  # a slot for the frame the reader may be putting, so that it sees the stop
+        with contextlib.suppress(queue.Empty):  # a slot for the frame the reader may be putting, so that it sees the stop
             box.get_nowait()
-        except queue.Empty:
-            pass
         reader.join()

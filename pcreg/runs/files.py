@@ -36,7 +36,7 @@ __all__ = ["StepTruth", "finite_figure", "step_class_iou", "STATE", "STEPS", "CA
            "label_digest", "UNREADABLE_CARRY", "write_labels",
            "labels_written", "labels_of_frames_gone", "write_confidence", "write_grey", "confidence_png",
            "append_step", "step_lines", "parse_steps", "counted_steps", "write_carry", "read_carry", "label_file_problem", "read_confidence", "check_labelled",
-           "write_suggestions", "read_suggestions", "has_confidence", "SUMMARY_FIELDS"]
+           "write_suggestions", "read_suggestions", "drop_suggestions", "remove_partial_writes", "has_confidence", "SUMMARY_FIELDS"]
 
 #: What the suggestions and a run's closing lines read of each step (:mod:`pcreg.runs.summary`), all that is kept of
 #: it there: an hour's steps (108,000 at 30 frames a second) kept whole took about half a GB.
@@ -436,6 +436,26 @@ def check_labelled(out: Path, stems: list[str], shape: tuple[int, int], confiden
         if problem is not None:
             raise OutputError(f"{path}: {problem}, though {out / STATE} counts that frame labelled; "
                               "use --force to start over")
+
+
+def drop_suggestions(out: Path, resumed: bool) -> None:
+    """Remove the suggest.txt of the run before in ``out`` (``resumed``: one was there) before frames are labelled
+    again: chosen from the predicted errors they replace, it may name a frame that is a key frame now (written anew at
+    the end with ``--suggest``). A first run keeps a person's own file of that name, as it keeps every file it did
+    not write."""
+    if resumed:
+        (out / SUGGEST).unlink(missing_ok=True)
+
+
+def remove_partial_writes(out: Path) -> None:
+    """Delete the temporary files of writes a killed run left half done in ``out`` (``.NAME.*.tmp`` of a label
+    PNG, a carry, run.json, steps.jsonl (rewritten by a key-frames run as it resumes) or suggest.txt, and of a
+    ``confidence/NAME.png``, :func:`pcreg.outputs.atomic_write_bytes`), and no other file; the caller holds the folder's lock."""
+    for f in out.glob(".*.tmp"):
+        if f.name.startswith((f".{STATE}.", ".carry-", f".{SUGGEST}.", f".{STEPS}.")) or ".png." in f.name:
+            f.unlink(missing_ok=True)
+    for f in (out / CONFIDENCE).glob(".*.png.*.tmp"):
+        f.unlink(missing_ok=True)
 
 
 def write_suggestions(out: Path, chosen: Sequence[tuple[str, float]]) -> Path:

@@ -51,8 +51,9 @@ from ..outputs import atomic_file
 from .earlier import Earlier
 from .edited import (check_key_files, check_same_frame, check_same_frames, check_same_inputs, check_same_truth,
                      frame_bytes, frame_stamp, key_contents)
-from .files import (CARRY, CONFIDENCE, HIDDEN, RUN_FILES, STEPS, SUGGEST, SUMMARY_FIELDS, append_step, check_labelled, label_digest,
-                    label_file_problem, labels_of_frames_gone, labels_written, parse_steps, read_carry, step_lines, write_carry, write_confidence, write_labels)
+from .files import (CARRY, CONFIDENCE, HIDDEN, RUN_FILES, STEPS, SUGGEST, SUMMARY_FIELDS, append_step, check_labelled, drop_suggestions,
+                    label_digest, label_file_problem, labels_of_frames_gone, labels_written, parse_steps, read_carry, remove_partial_writes,
+                    step_lines, write_carry, write_confidence, write_labels)
 from .records import check_record_path, check_recording, name_recording, nothing_to_record, run_recording
 from .state import FORMAT, STATE, inputs_placed, named_otherwise, open_state, read_state, run_frames, run_inputs, write_state
 from .truth import add_rates, count_frame, empty_counts, scored_step
@@ -188,7 +189,7 @@ class Run:
             if named_otherwise(out, self.state):  # its inputs found in new places (moved): kept
                 self.commit()
             return self._say_done(request, 0, [0], start=start)
-        self._drop_suggestions()
+        drop_suggestions(self.out, self.resumed)
         if start == 1:
             todo: Iterator = itertools.chain([second], decoded)
         else:
@@ -236,7 +237,7 @@ class Run:
             job.start(force=request.force)
         choose_kept(job, self.out)
         if not job.finished:
-            self._drop_suggestions()
+            drop_suggestions(self.out, self.resumed)
         if job.finished and request.record is not None and not request.force:
             nothing_to_record(request.record)  # an existing recording is this finished run's: nothing to add to it
             self._say_done(request, 0, sorted(keys))
@@ -256,13 +257,6 @@ class Run:
             if frames.kind == "video":  # written again while decoded: its frames may be of two videos
                 check_kept(self.state, frames, self.out)
             self._say_done(request, done, sorted(keys))
-
-    def _drop_suggestions(self) -> None:
-        """Remove an earlier run's suggest.txt before frames are labelled again: chosen from the predicted errors they
-        replace, it may name a frame that is a key frame now (written anew at the end with ``--suggest``). A first run
-        keeps a person's own file of that name, as it keeps every file it did not write."""
-        if self.resumed:
-            (self.out / SUGGEST).unlink(missing_ok=True)
 
     def _say_done(self, request: RunRequest, done: int, keys: list[int], *, start: int | None = None) -> None:
         """Print what the run did (``done`` frames now; ``start``: the first of them, a run from one label image), write the suggestions (``keys``: the key frames' positions)."""
@@ -315,12 +309,12 @@ class Run:
             self._cut_steps(int(state["done"]) - 1)
             check_same_frames(self.frames, self.out, str(state["key_frame"]), state.get("key_bytes"), state.get("key_contents"),
                               self.truth)
-            self._remove_partial_writes()
+            remove_partial_writes(self.out)
             stems = [self.frames.stem(t) for t in range(int(state["done"]))]
             check_labelled(self.out, stems, labels.shape, stems[1:] if self.confidence else ())
             return int(state["done"])
         self._start_over()
-        self._remove_partial_writes()  # those of a killed run started over (--force) too
+        remove_partial_writes(self.out)  # those of a killed run started over (--force) too
         self.state = {"format": FORMAT, "run": self.identity, "key_frame": self.frames.name(0), "done": 1, "fallbacks": 0,
                       "truth": empty_counts() if self.truth else None, "key_labels": digest}
         if self.frames.kind == "folder":
@@ -365,16 +359,6 @@ class Run:
         names = [self.out / n for n in RUN_FILES] + [self.out / default_name(f) for f in FORMATS]  # its exports, of its labels
         return [f for f in sorted(labels_written(self.out)) + names if resolved(f) not in kept and resolved(f).parent not in kept]
 
-    def _remove_partial_writes(self) -> None:
-        """Delete the temporary files of writes a killed run left half done (``.NAME.*.tmp`` of a label
-        PNG, a carry, run.json, steps.jsonl (rewritten by a key-frames run as it resumes) or suggest.txt, and of a
-        ``confidence/NAME.png``, :func:`pcreg.outputs.atomic_write_bytes`), and no other file; the caller holds the folder's lock."""
-        for f in self.out.glob(".*.tmp"):
-            if f.name.startswith((f".{STATE}.", ".carry-", f".{SUGGEST}.", f".{STEPS}.")) or ".png." in f.name:
-                f.unlink(missing_ok=True)
-        for f in (self.out / CONFIDENCE).glob(".*.png.*.tmp"):
-            f.unlink(missing_ok=True)
-
     def _cut_steps(self, n: int) -> None:
         """Keep the first ``n`` lines of steps.jsonl (a step appended after the last commit is dropped)."""
         path = self.out / STEPS
@@ -418,7 +402,7 @@ class Run:
             self.state = {"format": FORMAT, "run": self.identity, "keys": {}, "stretches": [], "cursor": None, "lines": 0,
                           "fallbacks": 0, "truth": None}
             (self.out / STEPS).write_bytes(b"")
-        self._remove_partial_writes()  # writes a killed run left half done
+        remove_partial_writes(self.out)  # writes a killed run left half done
         grown = self.frames.kind == "video" and keep_video(self.state, self.frames, self.out)
         # a stretch done, of the same key frames and options, that stops where it did (the frames after the last key
         # frame of a folder that gained frames since are not done, nor of a video appended to; runs from before

@@ -174,8 +174,8 @@ class Repetition:
         return {"image": self.image, "shift_px": [float(v) for v in self.shift_px], "correlation": float(self.correlation)}
 
 
-@dataclass(frozen=True, repr=False)
-class RegistrationResult:
+@dataclass(frozen=True, repr=False, eq=False)
+class RegistrationResult(FieldsCompared):
     """What both ICP backends and every cross-checked implementation return, so they can be compared
     field by field.
 
@@ -235,11 +235,6 @@ class RegistrationResult:
         m = np.array(self.matrix, dtype=np.float64, copy=True)
         m.setflags(write=False)
         object.__setattr__(self, "matrix", m)
-
-    def __eq__(self, other: object) -> bool:
-        if other.__class__ is not self.__class__:
-            return NotImplemented
-        return _fields_alike(self, other)
 
     def __hash__(self) -> int:
         return hash((self.backend, self.frames, self.iterations, self.matrix.shape))
@@ -341,8 +336,8 @@ class RegistrationResult:
         }
 
 
-@dataclass(frozen=True, repr=False)
-class IcpIteration:
+@dataclass(frozen=True, repr=False, eq=False)
+class IcpIteration(FieldsCompared):
     """One ICP iteration, handed to the optional per-iteration callback, and one step of a cross-checked
     implementation's :attr:`RegistrationResult.trace`.
 
@@ -365,11 +360,6 @@ class IcpIteration:
     source_points: np.ndarray | None = None
     target_points: np.ndarray | None = None
     target_indices: np.ndarray | None = None
-
-    def __eq__(self, other: object) -> bool:
-        if other.__class__ is not self.__class__:
-            return NotImplemented
-        return _fields_alike(self, other)  # the arrays by their values, NaN as NaN (as RegistrationResult)
 
     def __hash__(self) -> int:
         return hash((self.backend, self.level, self.iteration))

@@ -138,3 +138,22 @@ def test_a_round_without_the_truth_of_the_last_is_refused_as_other_options_not_a
     assert main(["run", str(moved), "--labels", str(keys), "--out", str(out), "--truth", str(truth), "--weight", "3"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].count("another --out") == 1 and "weight: 2.0 then, 3.0 now" in err[0], err
+
+
+@pytest.mark.parametrize("labels", ["folder of keys", "one key frame"])
+def test_a_first_run_with_suggest_does_not_write_over_a_persons_suggest_txt(tmp_path, clip, capsys, labels):
+    """A folder of no run holding a suggest.txt of a person's: a first run with ``--suggest`` wrote over it (a first
+    run without it keeps it). Refused, naming it, before anything is written; ``--force`` writes over it."""
+    frames, folder = clip
+    keys, out = _keys(tmp_path / "keys", frames, [0]), tmp_path / "out"
+    out.mkdir()
+    (out / "suggest.txt").write_text("mine\n")
+    given = keys if labels == "folder of keys" else keys / "f0.png"
+    run = ["run", str(folder), "--labels", str(given), "--out", str(out), "--suggest", "1"]
+    capsys.readouterr()
+    assert main(run) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"pcreg: error: {out / 'suggest.txt'}: this run would write over it"), err
+    assert sorted(p.name for p in out.iterdir() if p.name != ".pcreg.lock") == ["suggest.txt"] and (out / "suggest.txt").read_text() == "mine\n"
+    assert main(run[:-2]) == 0 and (out / "suggest.txt").read_text() == "mine\n"  # without --suggest: kept
+    assert main([*run, "--force"]) == 0 and (out / "suggest.txt").read_text() != "mine\n"

@@ -4,12 +4,15 @@ file and exit 2, and nothing already written is lost."""
 
 from __future__ import annotations
 
+import builtins
 import json
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+import pcreg.runs.files as run_files
 from pcreg.cli import main
 from _runs import drifting_frames, one_line_errors
 
@@ -56,16 +59,19 @@ def test_a_carry_whose_learned_histogram_is_not_numbers_is_refused(tmp_path, cap
     assert len(err) == 1 and "carry-0.npz: missing or unreadable" in err[0], err
 
 
-def test_a_full_disk_while_a_step_is_appended_names_steps_jsonl(tmp_path, capsys):
-    """/dev/full refuses every write with ENOSPC, as a full disk does."""
+def test_a_full_disk_while_a_step_is_appended_names_steps_jsonl(tmp_path, capsys, monkeypatch):
+    """/dev/full refuses every write with ENOSPC, as a full disk does: the run's appends to steps.jsonl go there."""
     if not os.path.exists("/dev/full"):
         pytest.skip("no /dev/full on this system")
     folder, key = drifting_frames(tmp_path / "frames")
     whole = tmp_path / "whole"
     assert main(["run", str(folder), "--labels", str(key), "--out", str(whole)]) == 0
     out = tmp_path / "out"
-    out.mkdir()
-    os.symlink("/dev/full", out / "steps.jsonl")
+
+    def full(path, mode="r", *args, **kwargs):  # the appends, and only they, onto the full disk
+        return builtins.open("/dev/full" if Path(path) == out / "steps.jsonl" and "a" in mode else path, mode, *args, **kwargs)
+
+    monkeypatch.setattr(run_files, "open", full, raising=False)
     run = ["run", str(folder), "--labels", str(key), "--out", str(out)]
     capsys.readouterr()
     assert main(run) == 2
@@ -73,10 +79,39 @@ def test_a_full_disk_while_a_step_is_appended_names_steps_jsonl(tmp_path, capsys
     assert len(err) == 1 and f"cannot write {out / 'steps.jsonl'}: No space left on device" in err[0], err
     assert err[0].endswith("(the frames labelled are kept; free space there, then rerun the same command to resume)")
     # with space again, the resume writes what the whole run wrote
-    (out / "steps.jsonl").unlink()
-    (out / "steps.jsonl").write_bytes(b"")
+    monkeypatch.undo()
     assert main(run) == 0
     assert all(_contents(out)[f"f{i}.png"] == _contents(whole)[f"f{i}.png"] for i in range(4))
+
+
+@pytest.mark.parametrize("odd", ["dangling", "link", "pipe", "folder"])
+def test_a_steps_jsonl_that_is_not_a_file_is_not_written_through(tmp_path, capsys, odd):
+    """A steps.jsonl that is a link in a new --out was appended to where it led (outside --out; --force emptied its
+    target), and a named pipe held the run: refused naming it; --force removes the link or pipe, not what it names."""
+    folder, key = drifting_frames(tmp_path / "frames")
+    out, target = tmp_path / "out", tmp_path / "elsewhere.txt"
+    out.mkdir()
+    if odd == "link":
+        target.write_text("a person's\n")
+    if odd in ("dangling", "link"):
+        (out / "steps.jsonl").symlink_to(target)
+    elif odd == "pipe":
+        os.mkfifo(out / "steps.jsonl")
+    else:
+        (out / "steps.jsonl").mkdir()
+    run = ["run", str(folder), "--labels", str(key), "--out", str(out)]
+    for force in ([], ["--force"]):
+        capsys.readouterr()
+        assert main(run + force) == (0 if force and odd != "folder" else 2)
+        if not force or odd == "folder":
+            err = one_line_errors(capsys)
+            assert len(err) == 1 and f"{out / 'steps.jsonl'}: " in err[0] and "not a file" in err[0], err
+            assert ("--force" in err[0]) is (odd != "folder")
+            assert not (out / "run.json").exists() and not list(out.glob("*.png"))
+        assert (target.read_text() == "a person's\n") if odd == "link" else not target.exists()
+    assert (out / "steps.jsonl").is_dir() if odd == "folder" else (out / "steps.jsonl").is_file()
+    if odd != "folder":
+        assert not (out / "steps.jsonl").is_symlink() and main(run) == 0  # the run's own now: resumed
 
 
 def test_a_part_of_a_step_after_the_counted_ones_is_not_read_by_the_readers(tmp_path, capsys):

@@ -113,12 +113,12 @@ class Run:
     position (an entry None where there is none; read when asked), or None; ``confidence``: write
     ``confidence/NAME.png``. The label PNGs are written in the class table the identity names (:func:`pcreg.classes.keys.run_table`)."""
 
-    def __init__(self, frames, out: Path, identity: dict | None, *, truth=None, confidence: bool = False) -> None:
+    def __init__(self, frames, out: Path, identity: dict | None, *, truth=None, confidence: bool = False, suggest: int | None = None) -> None:
         from .gaps import GapMarks
 
         self.frames, self.out, self.identity = frames, Path(out), identity
         self.table = run_table(identity)
-        self.truth, self.confidence = truth, confidence
+        self.truth, self.confidence, self.suggesting = truth, confidence, suggest is not None  # suggest.txt written
         self.state: dict = {}
         self.gaps = GapMarks(self)  # where the video skips frames by its times: said, and counted in run.json
         self.resumed = False  # whether ``out`` held a run of these options (:meth:`open_key`, :meth:`open_keys`)
@@ -154,7 +154,7 @@ class Run:
             identity = with_classes(run_identity(inputs.frames, request.frames, request.labels, request.config,
                                                  mapping=request.coding.mapping, truth=request.truth,
                                                  confidence=request.confidence), table, request.coding.mapping)
-            run = cls(inputs.frames, request.out, identity, truth=inputs.truth, confidence=request.confidence)
+            run = cls(inputs.frames, request.out, identity, truth=inputs.truth, confidence=request.confidence, suggest=request.suggest)
             with OutputLock(request.out), run.earlier.kept(run._written):  # a second run on the same --out is refused
                 if request.record is not None and not request.force:
                     check_recording(run.out, run.identity, Path(request.record))
@@ -297,7 +297,7 @@ class Run:
 
     def open_key(self, labels: np.ndarray, *, force: bool = False) -> int:
         """Open (or resume) a run from one label image, the key frame's ``labels``; the first frame still to do."""
-        state = open_state(self.out, self.identity, force=force, frames=self.frames)
+        state = open_state(self.out, self.identity, force=force, frames=self.frames, also=(SUGGEST,) if self.suggesting else ())
         self.resumed = state is not None  # an earlier run's, whose suggest.txt a run that labels removes
         digest = label_digest(labels)
         if state is not None:
@@ -393,7 +393,7 @@ class Run:
         """Open (or resume) a run from a folder of key frames (``keys``, {position: labels}) whose stretches
         are ``plan`` ({fingerprint: :class:`~pcreg.pipeline.engine.Stretch`}): the steps of stretches no
         longer in the plan forgotten, the key frames' labels written where they changed."""
-        state = open_state(self.out, self.identity, force=force, frames=self.frames)
+        state = open_state(self.out, self.identity, force=force, frames=self.frames, also=(SUGGEST,) if self.suggesting else ())
         self.resumed = state is not None  # an earlier run's, whose suggest.txt a run that labels removes
         if state is not None:
             self.state = state

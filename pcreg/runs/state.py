@@ -15,6 +15,8 @@ either for a run that writes (resume or start over); :func:`read_state` reads ei
 from __future__ import annotations
 
 import math
+import os
+import stat
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Iterator
@@ -207,19 +209,21 @@ def run_identity(frames, source: Path, labels: Path, config, *, mapping: str, tr
     return identity
 
 
-def open_state(out: Path, identity: dict | None, *, force: bool, frames=None) -> dict | None:
+def open_state(out: Path, identity: dict | None, *, force: bool, frames=None, also: tuple[str, ...] = ()) -> dict | None:
     """Make ``out`` (a folder) and read the run it holds: its run.json when it is a run of ``identity``
     (the same options and inputs), None when there is none or ``force`` starts over; a run of other
     options, an unreadable run.json, or one whose fields are not as pcreg run writes them
     (:func:`state_problem`) is an :class:`~pcreg.errors.OutputError`, and so, without ``force``, is a folder of no
     run (no run.json, no steps.jsonl: a run writes that first) that holds a label PNG or confidence map the run
-    over ``frames`` would write over (a person's own corrected labels, say), or a steps.jsonl that is not empty."""
+    over ``frames`` would write over (a person's own corrected labels, say), a steps.jsonl that is not empty, or a
+    file named in ``also`` that the run writes too (suggest.txt with ``--suggest``)."""
     if out.exists() and not out.is_dir():
         raise OutputError(f"{out}: exists and is not a folder")
     if (out / "config.json").is_file() and ((out / "results.json").exists() or (out / "units").is_dir()):
         raise OutputError(f"{out}: an evaluation's folder (config.json, results.json or units/): the run's files would "
                           "mix with its report, --force or not; give another --out")
     out.mkdir(parents=True, exist_ok=True)
+    _steps_file(out / STEPS, force=force)
     state_path = out / STATE
     begun = (out / STEPS).is_file() and (out / STEPS).stat().st_size == 0  # a run killed at its start: steps.jsonl first, empty
     if not force and frames is not None and not (state_path.exists() or state_path.is_symlink() or begun):
@@ -228,6 +232,7 @@ def open_state(out: Path, identity: dict | None, *, force: bool, frames=None) ->
                      if q.suffix.lower() == ".png" and frames.writes(q.stem)), None)
         if held is None and (out / STEPS).is_file():  # not empty (``begun``): a person's, as no run leaves it without run.json
             held = out / STEPS
+        held = held or next((out / n for n in also if (out / n).exists() or (out / n).is_symlink()), None)
         if held is not None:
             raise OutputError(f"{held}: this run would write over it, and {out} holds no run of pcreg's (no {STATE}); "
                               "give another --out, or --force to write over it")
@@ -256,6 +261,25 @@ def open_state(out: Path, identity: dict | None, *, force: bool, frames=None) ->
         raise OutputError(f"{state_path}: its {field!r} is not as pcreg run writes it; use --force to start over")
     state["format"] = FORMAT  # the same layout, named from now on
     return state
+
+
+def _steps_file(steps: Path, *, force: bool) -> None:
+    """A ``steps`` (steps.jsonl) that is not a regular file, which a run appending its steps would write through (a
+    link's target outside --out, a pipe it would wait on): an :class:`~pcreg.errors.OutputError`, and with ``force`` a
+    link, pipe or device node is removed (not what a link names); a folder is refused even so."""
+    try:
+        mode = steps.lstat().st_mode
+    except FileNotFoundError:
+        return
+    if stat.S_ISREG(mode):
+        return
+    what = f"a link to {os.readlink(steps)}" if stat.S_ISLNK(mode) else {stat.S_IFDIR: "a folder", stat.S_IFIFO: "a named pipe"}.get(
+        stat.S_IFMT(mode), "a device or socket")
+    if force and not stat.S_ISDIR(mode):
+        steps.unlink()
+        return
+    remedy = "give another --out" + ("" if stat.S_ISDIR(mode) else ", or --force to remove it")
+    raise OutputError(f"{steps}: {what}, not a file: a run appends its steps to this file of its own; {remedy}")
 
 
 def _without_unused(run):

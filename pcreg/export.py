@@ -31,6 +31,7 @@ from .classes import DEFAULT_TABLE, ClassTable
 from .classes.files import cvat_table
 from .errors import InputError
 from .formats import check_regular_file
+from ._moved import moved
 
 __all__ = ["FORMATS", "cvat_table", "RunLabels", "read_run", "read_labels", "labelled_frames", "labels_with_confidence", "instance_colours",
            "cvat_mask_archive", "write_cvat_mask", "write_cvat_mask_archive", "default_name"]
@@ -307,3 +308,7 @@ def write_cvat_mask(out: BinaryIO, frames, table: ClassTable = DEFAULT_TABLE) ->
             add(f"SegmentationObject/{stem}.png", _png(_paint(labels, instances), stem))
         add("ImageSets/Segmentation/default.txt", "".join(f"{s}\n" for s in stems))
     return counts
+
+
+__getattr__ = moved(__name__, {"LABELMAP": "pcreg._moved:LABELMAP_0_2 the run's class table (pcreg.export.cvat_table)",
+                                "INSTANCE_COLOURS": "pcreg._moved:INSTANCE_COLOURS_0_2 pcreg.export.instance_colours"})

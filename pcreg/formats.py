@@ -1,12 +1,9 @@
-"""pcreg's file formats: reading files safely, sniffing image and cloud headers, decoding images.
+"""pcreg's file formats: reading files safely, sniffing image headers, decoding images.
 
-:func:`read_regular_file` opens without blocking (a FIFO never hangs), accepts regular files only and
-reads at most a bounded number of bytes. :func:`image_size` reads the width and height from an image's
-header (PNG, JPEG, BMP, TIFF, WebP, PNM) so :func:`check_image_bytes` can refuse an image larger than
-the pixel limit (:func:`pcreg.validation.max_pixels`) *before* OpenCV decodes it.
-:func:`check_cloud_file` compares the point count a PLY/PCD/NPY header declares with what the file
-holds (a truncated binary PLY otherwise loads as made-up zeros).
-
+:func:`read_regular_file` opens without blocking (a FIFO never hangs), accepts regular files only and reads at most a
+bounded number of bytes. :func:`image_size` reads the width and height from an image's header (PNG, JPEG, BMP, TIFF,
+WebP, PNM) so :func:`check_image_bytes` can refuse an image larger than the pixel limit
+(:func:`pcreg.validation.max_pixels`) *before* OpenCV decodes it. The cloud files' checks are :mod:`pcreg.cloud_files`'s.
 Everything raises :class:`~pcreg.errors.InputError` (a :class:`~pcreg.errors.PcregError`).
 """
 
@@ -21,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
+from ._moved import moved
 from .quiet import capture_output_fds
 from .validation import check_pixels, max_pixels
 
@@ -597,3 +595,6 @@ def read_image_file_and_damage(path: str | os.PathLike, *, limit: int | None = N
     data = read_regular_file(path, max_bytes=max_file_bytes(limit), what="image", hint=RAISE_LIMIT)
     img, said = _decoded(data, str(path), flags=flags, limit=limit)
     return img, said if said.startswith(_DAMAGED_DATA) else ""
+
+
+__getattr__ = moved(__name__, {n: "pcreg.cloud_files" for n in ("check_cloud_file", "check_npy_file")} | {"read_text_matrix": "pcreg.text_files"})

@@ -28,6 +28,7 @@ from .classes import DEFAULT_TABLE, ClassTable
 from .errors import InputError
 from .validation import check_float
 from .formats import loads_json
+from ._moved import moved
 from .runs.files import StepTruth, finite_figure, step_class_iou
 from .legend import Legend, draw_legend, legend_figures
 from .review_frames import FrameImages
@@ -441,3 +442,6 @@ def write_overlay_video(review: RunReview, path: str | Path, *, fps: float | Non
     if small is not None and note is not None:
         note(small)
     return n
+
+
+__getattr__ = moved(__name__, {"SUGGEST": "pcreg.runs.files"})

@@ -461,6 +461,28 @@ def test_export_and_view_say_when_a_video_run_is_unfinished_or_being_written(tmp
         assert "pcreg: note" not in capsys.readouterr().err  # finished: no note
 
 
+def test_a_video_run_of_an_earlier_pcreg_is_not_said_unfinished(tmp_path, capsys):
+    """A run.json without ``video_file`` (every run names it first since; an earlier pcreg's, which kept no
+    ``video_end``) does not say whether the run labelled the video to its end: a finished run of pcreg 0.2.0 was said
+    unfinished by the export and the review. No note; the same command says "all frames already done" and keeps it."""
+    from _runs import video_and_keys
+
+    _, video, keys = video_and_keys(tmp_path, 6, (0,))
+    out = tmp_path / "out"
+    command = ["run", str(video), "--labels", str(keys / "000000.png"), "--out", str(out)]
+    assert main(command) == 0
+    state = json.loads((out / "run.json").read_text())
+    earlier = {k: v for k, v in state.items() if k not in ("video_file", "video_end", "format")}
+    (out / "run.json").write_text(json.dumps(earlier))  # as pcreg 0.2.0 wrote it
+    capsys.readouterr()
+    assert main(["export", str(out)]) == 0
+    assert main(["view", str(out), "--overlay", str(tmp_path / "o.mp4")]) == 0
+    assert "unfinished" not in capsys.readouterr().err
+    assert main(command) == 0
+    assert "all 6 frames already done" in capsys.readouterr().out
+    assert json.loads((out / "run.json").read_text())["video_end"] == 6
+
+
 def test_a_run_stopped_before_its_first_frame_is_said_so_by_every_reader(tmp_path, capsys):
     """A run stopped before its run.json was written (its steps.jsonl made, no frame labelled): export said "no
     run.json, so not the output of pcreg run", view --web "no results.json here (an evaluation's output folder)"."""

@@ -319,6 +319,7 @@ def test_the_old_stream_run_name_warns_and_still_opens_a_run(tmp_path, frames):
     run = old(open_frames(folder), frames[0].labels, tmp_path / "out", None, identity={"x": 1})
     assert isinstance(run, Run) and run.start() == 1
     assert run.carry_after(0) == (None, None)  # 0.2.0's pair (Run's gives a third, the scene)
+    assert run.learned_after(0) is None  # apart, as before 0.2.0
     assert (tmp_path / "out" / "f0.png").is_file() and json.loads((tmp_path / "out" / "run.json").read_text())["done"] == 1
 
 

@@ -1,4 +1,4 @@
-"""0.2.0's ``KeyRun(frames, keys, out, config, identity=..., truth=..., confidence=...)`` and its six-argument
+"""0.2.0's ``KeyRun(frames, keys, out, options, identity=..., truth=..., confidence=...)`` and its six-argument
 ``on_frame`` callback still work for one minor version, with a :class:`DeprecationWarning` naming the new spelling
 (``KeyRun(Run(frames, out, identity, ...), keys, config)``), and label what the new spelling labels."""
 
@@ -78,3 +78,30 @@ def test_every_spelling_0_2_took_and_what_it_refused(tmp_path, clip):
         KeyRun(Run(FolderFrames(folder), tmp_path, {}), keys)
     job = KeyRun(owner=Run(FolderFrames(folder), tmp_path, {}), keys=keys, config=config)  # the new form by keyword
     assert job.config is config
+
+
+def test_0_2s_options_dict_by_position_and_by_keyword_labels_what_its_configuration_labels(tmp_path, clip):
+    """0.2.0 took the propagator's keywords as a dict (``options``, as its ``pcreg run`` made it): the deprecated form
+    took only a PropagatorConfig, and 0.2.0's calls failed (an AttributeError of the dict in ``start``, or a TypeError
+    for ``options=``)."""
+    folder, keys = clip
+    options = {"backend": "reference", "model": "dense", "init": "identity", "weight": 2.0}
+    identity = {"frames": str(folder), "labels": "keys", **options}
+    runs = {"position": lambda out: KeyRun(FolderFrames(folder), keys, out, options, identity=identity),
+            "keyword": lambda out: KeyRun(frames=FolderFrames(folder), keys=keys, out=out, options=options, identity=identity),
+            "config": lambda out: KeyRun(FolderFrames(folder), keys, out, PropagatorConfig(), identity=identity)}
+    labelled = {}
+    for how, make in runs.items():
+        with pytest.warns(DeprecationWarning, match=r"KeyRun\(frames, keys, out, options"):
+            job = make(tmp_path / how)
+        assert job.config == PropagatorConfig()
+        (tmp_path / how).mkdir()
+        job.start()
+        assert job.run(lambda *a: None) == 3
+        labelled[how] = _labels(tmp_path / how)
+    assert all(np.array_equal(a, b) for how in ("position", "keyword") for a, b in zip(labelled[how], labelled["config"]))
+    with pytest.warns(DeprecationWarning):
+        flow = KeyRun(FolderFrames(folder), keys, tmp_path, {**options, "model": "flow:fast", "scale": 0.5}, identity=None)
+    assert flow.config == PropagatorConfig(model="flow", preset="fast", scale=0.5)
+    with pytest.warns(DeprecationWarning), pytest.raises(TypeError, match=r"^KeyRun\(\): options must be a dict"):
+        KeyRun(FolderFrames(folder), keys, tmp_path, "dense", identity=None)

@@ -77,6 +77,11 @@ def test_a_copied_run_whose_frame_changed_or_that_kept_no_digest_of_its_labels_i
     assert main(["run", str(older / "frames"), "--labels", str(older / "key.png"), "--out", str(older / "out")]) == 2
     err = one_line_errors(capsys)
     assert len(err) == 1 and "holds a run with other options (folder:" in err[0], err
+    here.rename(tmp_path / "gone")  # the review of that run said a run from the new place would go on: refused so
+    assert main(["view", str(older / "out"), "--overlay", str(tmp_path / "o.mp4")]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and f"the run's folder {(here / 'frames').resolve()} is gone" in err[0], err
+    assert "put it back there: this run was begun by an earlier pcreg" in err[0] and "new path" not in err[0], err
 
 
 def test_a_moved_key_frames_run_resumes_from_its_new_place(tmp_path, capsys):

@@ -42,6 +42,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from ..errors import InputError
+from .._moved import moved
 
 __all__ = ["LabelledFrame", "label_clip", "suggest", "KEY_FITS"]
 
@@ -244,3 +245,6 @@ def _nearest(frames: np.ndarray, labelled: np.ndarray) -> np.ndarray:
     after = labelled[np.minimum(at, len(labelled) - 1)]
     before = labelled[np.maximum(at - 1, 0)]
     return np.minimum(np.abs(frames - after), np.abs(frames - before))
+
+
+__getattr__ = moved(__name__, {"segments": "pcreg._moved:segments_0_2 pcreg.pipeline.engine.stretches (Stretch: first, last, stop)"})

@@ -1,6 +1,6 @@
 """``pcreg run`` from a folder of key frames, resumable: :class:`KeyRun`, the passes of
 :mod:`pcreg.pipeline.key_passes` under their public name, which also takes 0.2.0's form
-``KeyRun(frames, keys, out, config, *, identity, truth=None, confidence=False)`` (with a :class:`DeprecationWarning`,
+``KeyRun(frames, keys, out, options, *, identity, truth=None, confidence=False)`` (with a :class:`DeprecationWarning`,
 until 0.4). A run itself (:class:`pcreg.runs.run.Run`) makes the passes' own class, so that it need not load this
 module, which loads it for 0.2.0's form.
 """
@@ -12,15 +12,17 @@ from pathlib import Path
 
 from . import key_passes
 from .key_passes import HIDDEN
+from .._moved import moved
 
 __all__ = ["KeyRun", "HIDDEN"]
 
-#: ``KeyRun(owner, keys, config)``, and 0.2.0's ``KeyRun(frames, keys, out, config, *, identity, truth=None,
-#: confidence=False)``, still taken until 0.4.
+#: ``KeyRun(owner, keys, config)``, and 0.2.0's ``KeyRun(frames, keys, out, options, *, identity, truth=None,
+#: confidence=False)``, ``options`` the :class:`pcreg.Propagator` keywords (a dict; a
+#: :class:`~pcreg.pipeline.config.PropagatorConfig` is taken too, by position or as ``config=``), still taken until 0.4.
 _FORM = inspect.Signature([inspect.Parameter(n, inspect.Parameter.POSITIONAL_OR_KEYWORD) for n in ("owner", "keys", "config")]
                           + [inspect.Parameter("reading", inspect.Parameter.KEYWORD_ONLY, default=None)])
 _FORM_0_2 = inspect.Signature(
-    [inspect.Parameter(n, inspect.Parameter.POSITIONAL_OR_KEYWORD) for n in ("frames", "keys", "out", "config")]
+    [inspect.Parameter(n, inspect.Parameter.POSITIONAL_OR_KEYWORD) for n in ("frames", "keys", "out", "options")]
     + [inspect.Parameter("identity", inspect.Parameter.KEYWORD_ONLY),
        inspect.Parameter("truth", inspect.Parameter.KEYWORD_ONLY, default=None),
        inspect.Parameter("confidence", inspect.Parameter.KEYWORD_ONLY, default=False)])
@@ -28,7 +30,7 @@ _FORM_0_2 = inspect.Signature(
 
 class KeyRun(key_passes.KeyRun):
     """:class:`pcreg.pipeline.key_passes.KeyRun`: ``KeyRun(owner, keys, config)``, or 0.2.0's ``KeyRun(frames, keys,
-    out, config, identity=, truth=, confidence=)`` (by position or keyword), its owner the
+    out, options, identity=, truth=, confidence=)`` (by position or keyword), its owner the
     :class:`~pcreg.runs.run.Run` that spells, with a :class:`DeprecationWarning` naming the new spelling."""
 
     def __init__(self, *args, **kwargs) -> None:
@@ -57,8 +59,31 @@ def _run_of_0_2(*args, **kwargs) -> tuple:
 
     from ..runs.run import Run
 
-    frames, keys, out, config, identity, truth, confidence = _bound(_FORM_0_2, args, kwargs)
-    warnings.warn("KeyRun(frames, keys, out, config, identity=..., truth=..., confidence=...) is deprecated and will "
+    if "config" in kwargs and "options" not in kwargs:  # the keyword a PropagatorConfig was given by
+        kwargs["options"] = kwargs.pop("config")
+    frames, keys, out, options, identity, truth, confidence = _bound(_FORM_0_2, args, kwargs)
+    warnings.warn("KeyRun(frames, keys, out, options, identity=..., truth=..., confidence=...) is deprecated and will "
                   "be removed in 0.4.0; use KeyRun(pcreg.runs.run.Run(frames, out, identity, truth=..., confidence=...), "
                   "keys, config)", DeprecationWarning, stacklevel=3)
-    return Run(frames, Path(out), identity, truth=truth, confidence=bool(confidence)), keys, config
+    return Run(frames, Path(out), identity, truth=truth, confidence=bool(confidence)), keys, _config(options)
+
+
+def _config(options):
+    """The :class:`~pcreg.pipeline.config.PropagatorConfig` of 0.2.0's ``options``: a dict of
+    :class:`pcreg.Propagator`'s keywords as ``PropagatorConfig.options()`` gives them (a flow's preset in its
+    model's name, ``"flow:medium"``), or a configuration already."""
+    from .config import PropagatorConfig
+
+    if isinstance(options, PropagatorConfig):
+        return options
+    if not isinstance(options, dict):
+        raise TypeError(f"KeyRun(): options must be a dict of pcreg.Propagator's keywords or a PropagatorConfig, "
+                        f"not {type(options).__name__}")
+    given = dict(options)
+    model = str(given.get("model", "dense"))
+    if model.startswith("flow:"):
+        given["model"], given["preset"] = "flow", model.split(":", 1)[1]
+    return PropagatorConfig(**given)
+
+
+__getattr__ = moved(__name__, {"Stretch": "pcreg.pipeline.engine", "stretches": "pcreg.pipeline.engine"})

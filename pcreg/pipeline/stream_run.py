@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._moved import moved
 from ..runs.run import Run
 
 __all__: list[str] = []  # StreamRun: deprecated, see the module
@@ -29,10 +30,19 @@ class _StreamRun(Run):
         key frame's scene)."""
         return Run.carry_after(self, t)[:2]
 
+    def learned_after(self, t: int):
+        """What the classifier had learned from the stream after frame ``t`` (:meth:`carry_after`'s second), as
+        the ``StreamRun`` of before 0.2.0 gave it apart."""
+        return Run.carry_after(self, t)[1]
 
-def __getattr__(name: str):
+
+def _stream_run(name: str):
     if name == "StreamRun":
         warnings.warn("pcreg.pipeline.stream_run.StreamRun is deprecated; use pcreg.runs.run.Run (open_key, record, "
-                      "carry_after)", DeprecationWarning, stacklevel=2)
+                      "carry_after)", DeprecationWarning, stacklevel=3)
         return _StreamRun
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+__getattr__ = moved(__name__, {n: "pcreg.runs.files" for n in ("STATE", "STEPS", "CARRY", "CONFIDENCE", "confidence_png")},
+                    fallback=_stream_run)

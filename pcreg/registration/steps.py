@@ -25,9 +25,9 @@ class IcpSettings:
     """The options every step of one registration shares (distances, limits and levels vary per call).
 
     weights, trim_fraction, metric, rotation : the reference backend's (Open3D's step refuses any other
-        than the default). dlt : how the reference backend solves the projective model's step
-        (:data:`~pcreg.registration.closed_forms.DLT_SOLVES`). stepwise : Open3D's step runs one iteration at a
-        time even without a callback, so that ``iterations`` and ``converged`` are exact.
+        than the default). stepwise : Open3D's step runs one iteration at a time even without a callback, so that
+        ``iterations`` and ``converged`` are exact. dlt : how the reference backend solves the projective model's
+        step (:data:`~pcreg.registration.closed_forms.DLT_SOLVES`).
     """
 
     model: str
@@ -36,8 +36,8 @@ class IcpSettings:
     trim_fraction: float = 0.9
     metric: str = "point_to_point"
     rotation: str = "svd"
-    dlt: str = "svd"
     stepwise: bool = False
+    dlt: str = "svd"  # after stepwise, added after it: a settings made by position keeps its meaning
 
 
 @dataclass(frozen=True)

@@ -208,8 +208,13 @@ def check_source(state: dict, kind: str, source: Path, folder: Path) -> None:
     (:func:`~pcreg.runs.video_file.check_labelled_video`: its frames are not those labelled; a folder's frames are
     checked step by step)."""
     from ..outputs import shell_word
+    from .state import can_move
     from .video_file import check_labelled_video
 
+    if not source.exists() and not can_move(state, kind):  # begun before a run kept what it read of its inputs
+        raise InputError(f"{folder / STATE}: the run's {kind} {source} is gone (the frames are read from there); put it "
+                         "back there: this run was begun by an earlier pcreg, which did not keep what it read of its inputs, "
+                         "so it cannot be followed to a new place (pcreg run ... --force labels the frames again)")
     if not source.exists():
         raise InputError(f"{folder / STATE}: the run's {kind} {source} is gone (the frames are read from there); moved with its project? the same "
                          f"pcreg run with the {kind}'s new path and --out {shell_word(folder)} names the new places in run.json, and goes on from what was labelled")

@@ -264,9 +264,8 @@ def open_state(out: Path, identity: dict | None, *, force: bool, frames=None, al
 
 
 def _steps_file(steps: Path, *, force: bool) -> None:
-    """A ``steps`` (steps.jsonl) that is not a regular file, which a run appending its steps would write through (a
-    link's target outside --out, a pipe it would wait on): an :class:`~pcreg.errors.OutputError`, and with ``force`` a
-    link, pipe or device node is removed (not what a link names); a folder is refused even so."""
+    """A ``steps`` (steps.jsonl) that is not a regular file, which a run's appends would go through (to a link's
+    target, or a pipe's reader): an OutputError; with ``force`` a link, pipe or device node is removed, not a folder."""
     try:
         mode = steps.lstat().st_mode
     except FileNotFoundError:
@@ -305,9 +304,14 @@ def _moved(before, now: dict | None, state: dict):
         return before
     places = {k: now[k] for k in _INPUT_PATHS
               if isinstance(before.get(k), str) and isinstance(now.get(k), str) and before[k] != now[k]}
+    return {**before, **places} if places and can_move(state, "folder" if "folder" in now else "video") else before
+
+
+def can_move(state: dict, kind: str) -> bool:
+    """Whether the run of run.json ``state`` kept enough of its inputs (``kind``: its frames a folder or a video) to be
+    followed to their new places (:func:`_moved`): what a run begun before they were kept read is not known."""
     labels_kept = "stretches" in state or isinstance(state.get("key_labels"), str)
-    frames_kept = state.get("key_contents") if "folder" in now else state.get("video_file")
-    return {**before, **places} if places and labels_kept and frames_kept else before
+    return bool(labels_kept and (state.get("key_contents") if kind == "folder" else state.get("video_file")))
 
 
 @contextmanager
@@ -582,14 +586,15 @@ def video_unfinished(folder: Path) -> bool | None:
     one): a run from one label image keeps ``video_end`` once decoding found their end
     (:func:`~pcreg.runs.video_file.labelled_to_end`); a run from key frames labels its stretches in order, the last
     one the frames after its last key frame to the video's end (``stop`` None, none when that is the last frame), so
-    it is done once that one is and no other is under way (``cursor``)."""
+    it is done once that one is and no other is under way (``cursor``). None too for a run of an earlier pcreg, which
+    did not say (the same command tells: "all frames already done", or it goes on)."""
     from .video_file import labelled_to_end
 
     try:
         state = read_state(folder)
     except InputError:
         return None
-    if "done" in state:
-        return not labelled_to_end(state)
+    if "done" in state:  # without video_file, which every run since names first, an earlier pcreg's that kept no end
+        return None if "video_file" not in state else not labelled_to_end(state)
     ended = any(isinstance(e, dict) and e.get("stop") is None for e in state.get("stretches") or ())
     return state.get("cursor") is not None or not ended

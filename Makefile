@@ -4,9 +4,9 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP = $(VENV)/.pcreg-installed-$(OPEN3D)
-# Open3D's wheel needs libusb at import; the headless viewer screenshots need lavapipe (Vulkan on the CPU);
+# Debian's Python makes a venv with python3-venv (ensurepip); Open3D's wheel needs libusb at import; the headless viewer screenshots need lavapipe (Vulkan on the CPU);
 # the cross-check tests compile tools/icp_min.c with gcc; `pcreg view --web` is tested in headless Chromium.
-APT_PACKAGES := libusb-1.0-0 mesa-vulkan-drivers libgomp1 gcc libc6-dev chromium
+APT_PACKAGES := python3-venv libusb-1.0-0 mesa-vulkan-drivers libgomp1 gcc libc6-dev chromium
 # OPEN3D=cuda installs the CUDA build of Open3D (907 MB) instead of the CPU build (312 MB).
 OPEN3D ?= cpu
 # One test process per CPU, each taking whole files (so a module's fixtures are built once): on 2 CPUs the
@@ -35,18 +35,19 @@ sysdeps:
 	  $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq --no-install-recommends $$missing >/dev/null; \
 	fi
 
-$(STAMP): pyproject.toml
-	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e ".[$(OPEN3D),test,crosscheck,distributed,lint,docs]"
-	$(BIN)/python -m pip install -q --no-deps "probreg>=0.3.6"   # it declares the full open3d wheel; open3d-cpu serves
-	@touch $(STAMP)
+# Installed again when pyproject.toml changed, or .venv is not whole (tools/setup_venv.sh: half made, made in
+# another folder by a copied or moved checkout, its Python gone, pcreg not in it); after the system packages.
+$(STAMP): pyproject.toml $(shell bash tools/setup_venv.sh check) | sysdeps
+	@bash tools/setup_venv.sh install "$(PYTHON)" "$(OPEN3D)"
+
+.PHONY: FORCE
+FORCE:
 
 demo: setup
 	$(BIN)/pcreg demo --out out/demo --force
 
 $(DATUMARO)/.installed:
-	@test -x $(DATUMARO)/bin/python || $(PYTHON) -m venv $(DATUMARO)
+	@$(DATUMARO)/bin/python -c 'import pip' 2>/dev/null || $(PYTHON) -m venv --clear $(DATUMARO)
 	$(DATUMARO)/bin/python -m pip install -q "datumaro>=1.13,<2"
 	@touch $@
 
@@ -77,4 +78,4 @@ bench: setup
 	$(BIN)/python tools/bench_recording.py --out out/bench
 
 clean:
-	rm -rf $(VENV) $(DATUMARO) out build .pytest_cache .mypy_cache .ruff_cache
+	rm -rf $(VENV) $(VENV).lock $(DATUMARO) out build .pytest_cache .mypy_cache .ruff_cache

@@ -23,7 +23,7 @@ import io
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import BinaryIO
+from typing import TYPE_CHECKING, BinaryIO
 
 import numpy as np
 
@@ -310,5 +310,6 @@ def write_cvat_mask(out: BinaryIO, frames, table: ClassTable = DEFAULT_TABLE) ->
     return counts
 
 
-__getattr__ = moved(__name__, {"LABELMAP": "pcreg._moved:LABELMAP_0_2 the run's class table (pcreg.export.cvat_table)",
-                                "INSTANCE_COLOURS": "pcreg._moved:INSTANCE_COLOURS_0_2 pcreg.export.instance_colours"})
+if not TYPE_CHECKING:  # a module __getattr__ would be mypy's for every name: a misspelt one would pass
+    __getattr__ = moved(__name__, {"LABELMAP": "pcreg._moved:LABELMAP_0_2 the run's class table (pcreg.export.cvat_table)",
+                                    "INSTANCE_COLOURS": "pcreg._moved:INSTANCE_COLOURS_0_2 pcreg.export.instance_colours"})

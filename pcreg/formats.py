@@ -1,10 +1,8 @@
-"""pcreg's file formats: reading files safely, sniffing image headers, decoding images.
-
-:func:`read_regular_file` opens without blocking (a FIFO never hangs), accepts regular files only and reads at most a
-bounded number of bytes. :func:`image_size` reads the width and height from an image's header (PNG, JPEG, BMP, TIFF,
-WebP, PNM) so :func:`check_image_bytes` can refuse an image larger than the pixel limit
-(:func:`pcreg.validation.max_pixels`) *before* OpenCV decodes it. The cloud files' checks are :mod:`pcreg.cloud_files`'s.
-Everything raises :class:`~pcreg.errors.InputError` (a :class:`~pcreg.errors.PcregError`).
+"""pcreg's file formats: reading files safely, sniffing image headers, decoding images. :func:`read_regular_file`
+opens without blocking (a FIFO never hangs), accepts regular files only and reads a bounded number of bytes;
+:func:`image_size` reads an image's width and height from its header so :func:`check_image_bytes` can refuse one
+beyond the pixel limit (:func:`pcreg.validation.max_pixels`) *before* OpenCV decodes it. The cloud files' checks are
+:mod:`pcreg.cloud_files`'s. Everything raises :class:`~pcreg.errors.InputError` (a :class:`~pcreg.errors.PcregError`).
 """
 
 from __future__ import annotations
@@ -14,6 +12,7 @@ import re
 import stat
 import struct
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -597,4 +596,5 @@ def read_image_file_and_damage(path: str | os.PathLike, *, limit: int | None = N
     return img, said if said.startswith(_DAMAGED_DATA) else ""
 
 
-__getattr__ = moved(__name__, {n: "pcreg.cloud_files" for n in ("check_cloud_file", "check_npy_file")} | {"read_text_matrix": "pcreg.text_files"})
+if not TYPE_CHECKING:  # a module __getattr__ would be mypy's for every name: a misspelt one would pass
+    __getattr__ = moved(__name__, {n: "pcreg.cloud_files" for n in ("check_cloud_file", "check_npy_file")} | {"read_text_matrix": "pcreg.text_files"})

@@ -85,8 +85,24 @@ def _textured_pair(size: int = 96, shift: int = 2) -> tuple[np.ndarray, np.ndarr
 
 
 def main() -> int:  # pragma: no cover - run by the Makefile
+    """Compile every kernel; Ctrl-C or SIGTERM (a ``make`` stopped) ends it with one line and exit 130, the kernels
+    compiled so far kept in the cache (a kernel being compiled is finished first, :mod:`pcreg._jit`)."""
+    import sys
+
+    from ._signals import check_interrupted, ignore_signals, interrupt_on_signals, restore_signals
+
+    previous = interrupt_on_signals()
     t0 = time.perf_counter()
-    warm_up()
+    try:
+        warm_up()
+        check_interrupted()  # one noted while a kernel was compiled
+    except KeyboardInterrupt:
+        restore_signals(previous)
+        ignore_signals()  # a second Ctrl-C while the line is said
+        print("pcreg: interrupted while compiling the kernels (those compiled are kept; python -m pcreg.kernels, or "
+              "make, goes on)", file=sys.stderr)
+        return 130
+    restore_signals(previous)
     from ._jit import _UNCACHED
 
     where = ("not cached: no folder was writable, so each process compiles them again; set NUMBA_CACHE_DIR"

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -444,4 +444,5 @@ def write_overlay_video(review: RunReview, path: str | Path, *, fps: float | Non
     return n
 
 
-__getattr__ = moved(__name__, {"SUGGEST": "pcreg.runs.files"})
+if not TYPE_CHECKING:  # a module __getattr__ would be mypy's for every name: a misspelt one would pass
+    __getattr__ = moved(__name__, {"SUGGEST": "pcreg.runs.files"})

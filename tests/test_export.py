@@ -464,7 +464,8 @@ def test_export_and_view_say_when_a_video_run_is_unfinished_or_being_written(tmp
 def test_a_video_run_of_an_earlier_pcreg_is_not_said_unfinished(tmp_path, capsys):
     """A run.json without ``video_file`` (every run names it first since; an earlier pcreg's, which kept no
     ``video_end``) does not say whether the run labelled the video to its end: a finished run of pcreg 0.2.0 was said
-    unfinished by the export and the review. No note; the same command says "all frames already done" and keeps it."""
+    unfinished by the export and the review. The note says it is not known; the same command says "all frames already
+    done", and from then on run.json says it."""
     from _runs import video_and_keys
 
     _, video, keys = video_and_keys(tmp_path, 6, (0,))
@@ -477,10 +478,15 @@ def test_a_video_run_of_an_earlier_pcreg_is_not_said_unfinished(tmp_path, capsys
     capsys.readouterr()
     assert main(["export", str(out)]) == 0
     assert main(["view", str(out), "--overlay", str(tmp_path / "o.mp4")]) == 0
-    assert "unfinished" not in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "unfinished" not in err
+    assert err.count(f"pcreg: note: {out} holds 6 frame(s) of a video; its run.json does not say whether the run "
+                     "labelled the video to its end (a run of an earlier pcreg)") == 2, err
     assert main(command) == 0
     assert "all 6 frames already done" in capsys.readouterr().out
     assert json.loads((out / "run.json").read_text())["video_end"] == 6
+    assert main(["export", str(out), "--force"]) == 0
+    assert "pcreg: note" not in capsys.readouterr().err
 
 
 def test_a_run_stopped_before_its_first_frame_is_said_so_by_every_reader(tmp_path, capsys):

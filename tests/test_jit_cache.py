@@ -232,3 +232,27 @@ def test_a_machine_without_a_writable_temporary_folder_still_runs_commands(monke
     with pytest.raises(SystemExit) as ended:  # argparse's own exit after printing the version
         main(["--version"])
     assert ended.value.code == 0 and "pcreg" in capsys.readouterr().out
+
+
+@pytest.mark.slow
+def test_the_kernels_compile_stopped_by_ctrl_c_ends_in_one_line_and_130(tmp_path):
+    """``python -m pcreg.kernels`` (what ``make`` runs after installing) stopped while it compiled printed some 100
+    lines of numba's traceback and ended in exit 1, or swallowed the Ctrl-C in LLVM's callback and went on: it takes
+    pcreg's signals, as a command does, and ends with one line and exit 130 once the kernel under way is compiled."""
+    import signal
+
+    from pcreg._jit import COMPILING
+
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    proc = subprocess.Popen([sys.executable, "-m", "pcreg.kernels"], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        assert proc.stderr.readline().rstrip("\n") == COMPILING  # compiling now: the event to stop it at
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=600)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130, err
+    assert err.splitlines() == ["pcreg: interrupted while compiling the kernels (those compiled are kept; python -m "
+                                "pcreg.kernels, or make, goes on)"], err
+    assert out == ""

@@ -448,3 +448,16 @@ def test_the_closing_lines_quote_a_class_name_that_holds_a_list_s_comma():
     steps = {1: {"iou": {"0": 0.75, "1": 0.5}, "predicted_iou": {"0": 0.75, "1": 0.25}, "predicted_error": 3.0}}
     assert "road 0.75 (0.75), 'car, parked' 0.50 (0.25); the mean" in truth_summary(steps, table)
     assert "the class predicted worst: 'car, parked', IoU 0.25" in predicted_summary(steps, str, table, Path("out"))
+
+
+def test_the_truth_line_says_when_it_is_over_fewer_frames_than_were_labelled():
+    """A run of an earlier pcreg scored against the truth and taken further: its earlier steps kept no IoU, and the line
+    gave the mean over the frames labelled since as if it were over them all."""
+    from pcreg.runs.summary import truth_summary
+
+    steps = {1: {"iou": {"0": 0.5, "1": 0.25}}, 2: {"predicted_error": 1.0}, 3: {"iou": {"0": 0.75}}}
+    line = truth_summary(steps, pcreg.classes.LAGR)
+    assert line.startswith("\nIoU against the truth, each class's mean over the frames that show it, among the 2 of the "
+                           "3 frames whose step holds one (predicted from the confidence in brackets): "), line
+    assert ": ground 0.62, obstacle 0.25; the mean over all 2 classes 0.44" in line
+    assert ", among the" not in truth_summary({1: steps[1], 3: steps[3]}, pcreg.classes.LAGR)

@@ -84,17 +84,20 @@ def test_a_full_disk_while_a_step_is_appended_names_steps_jsonl(tmp_path, capsys
     assert all(_contents(out)[f"f{i}.png"] == _contents(whole)[f"f{i}.png"] for i in range(4))
 
 
-@pytest.mark.parametrize("odd", ["dangling", "link", "pipe", "folder"])
+@pytest.mark.parametrize("odd", ["dangling", "link", "hard link", "pipe", "folder"])
 def test_a_steps_jsonl_that_is_not_a_file_is_not_written_through(tmp_path, capsys, odd):
     """A steps.jsonl that is a link in a new --out was appended to where it led (outside --out; --force emptied its
-    target), and a named pipe held the run: refused naming it; --force removes the link or pipe, not what it names."""
+    target; a hard link's other name likewise), and a named pipe held the run: refused naming it; --force removes the
+    link or pipe, not what it names."""
     folder, key = drifting_frames(tmp_path / "frames")
     out, target = tmp_path / "out", tmp_path / "elsewhere.txt"
     out.mkdir()
-    if odd == "link":
+    if odd in ("link", "hard link"):
         target.write_text("a person's\n")
     if odd in ("dangling", "link"):
         (out / "steps.jsonl").symlink_to(target)
+    elif odd == "hard link":
+        os.link(target, out / "steps.jsonl")
     elif odd == "pipe":
         os.mkfifo(out / "steps.jsonl")
     else:
@@ -105,13 +108,32 @@ def test_a_steps_jsonl_that_is_not_a_file_is_not_written_through(tmp_path, capsy
         assert main(run + force) == (0 if force and odd != "folder" else 2)
         if not force or odd == "folder":
             err = one_line_errors(capsys)
-            assert len(err) == 1 and f"{out / 'steps.jsonl'}: " in err[0] and "not a file" in err[0], err
+            assert len(err) == 1 and f"{out / 'steps.jsonl'}: " in err[0] and "not a file of its own" in err[0], err
             assert ("--force" in err[0]) is (odd != "folder")
             assert not (out / "run.json").exists() and not list(out.glob("*.png"))
-        assert (target.read_text() == "a person's\n") if odd == "link" else not target.exists()
+        assert (target.read_text() == "a person's\n") if odd in ("link", "hard link") else not target.exists()
     assert (out / "steps.jsonl").is_dir() if odd == "folder" else (out / "steps.jsonl").is_file()
     if odd != "folder":
         assert not (out / "steps.jsonl").is_symlink() and main(run) == 0  # the run's own now: resumed
+
+
+def test_a_run_whose_steps_jsonl_is_a_link_resumes_and_force_over_it_keeps_it_on_bad_input(tmp_path, capsys):
+    """A run's own folder whose files are links (``cp -rs``, git-annex, DVC): its rerun goes on as before, and a run
+    started over with --force that stops on bad input puts the earlier run back whole, its link included (the check of
+    a new --out's steps.jsonl is not made in a folder that holds a run)."""
+    folder, key = drifting_frames(tmp_path / "frames")
+    out = tmp_path / "out"
+    run = ["run", str(folder), "--labels", str(key), "--out", str(out)]
+    assert main([*run, "--stop", "3"]) == 0
+    (out / "steps.jsonl").rename(tmp_path / "kept-steps.jsonl")
+    (out / "steps.jsonl").symlink_to(tmp_path / "kept-steps.jsonl")
+    before = _contents(out)
+    capsys.readouterr()
+    assert main([*run, "--stop", "3"]) == 0 and "already done" in capsys.readouterr().out
+    (folder / "f3.png").write_bytes(b"not a png")
+    assert main([*run, "--force"]) == 2
+    assert "as it was" in capsys.readouterr().err
+    assert _contents(out) == before and (out / "steps.jsonl").is_symlink()
 
 
 def test_a_part_of_a_step_after_the_counted_ones_is_not_read_by_the_readers(tmp_path, capsys):

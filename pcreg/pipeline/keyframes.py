@@ -37,7 +37,7 @@ a stretch labelled from one side only first, then the frame whose predicted erro
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -247,4 +247,5 @@ def _nearest(frames: np.ndarray, labelled: np.ndarray) -> np.ndarray:
     return np.minimum(np.abs(frames - after), np.abs(frames - before))
 
 
-__getattr__ = moved(__name__, {"segments": "pcreg._moved:segments_0_2 pcreg.pipeline.engine.stretches (Stretch: first, last, stop)"})
+if not TYPE_CHECKING:  # a module __getattr__ would be mypy's for every name: a misspelt one would pass
+    __getattr__ = moved(__name__, {"segments": "pcreg._moved:segments_0_2 pcreg.pipeline.engine.stretches (Stretch: first, last, stop)"})

@@ -7,6 +7,8 @@ module, which loads it for 0.2.0's form.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import inspect
 from pathlib import Path
 
@@ -86,4 +88,5 @@ def _config(options):
     return PropagatorConfig(**given)
 
 
-__getattr__ = moved(__name__, {"Stretch": "pcreg.pipeline.engine", "stretches": "pcreg.pipeline.engine"})
+if not TYPE_CHECKING:  # a module __getattr__ would be mypy's for every name: a misspelt one would pass
+    __getattr__ = moved(__name__, {"Stretch": "pcreg.pipeline.engine", "stretches": "pcreg.pipeline.engine"})

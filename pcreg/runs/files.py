@@ -20,6 +20,7 @@ import itertools
 import json
 import math
 import os
+import stat
 import zipfile
 import zlib
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -32,7 +33,7 @@ from ..errors import InputError, OutputError
 from ..cloud_files import NPY_HEADER_ERRORS
 from ..formats import loads_json
 
-__all__ = ["StepTruth", "finite_figure", "step_class_iou", "STATE", "STEPS", "CARRY", "CONFIDENCE", "SUGGEST", "HIDDEN", "RUN_FILES", "EARLIER",
+__all__ = ["check_steps_file", "StepTruth", "finite_figure", "step_class_iou", "STATE", "STEPS", "CARRY", "CONFIDENCE", "SUGGEST", "HIDDEN", "RUN_FILES", "EARLIER",
            "label_digest", "UNREADABLE_CARRY", "write_labels",
            "labels_written", "labels_of_frames_gone", "write_confidence", "write_grey", "confidence_png",
            "append_step", "step_lines", "parse_steps", "counted_steps", "write_carry", "read_carry", "label_file_problem", "read_confidence", "check_labelled",
@@ -102,6 +103,24 @@ def confidence_png(confidence: np.ndarray) -> np.ndarray:
     if not (np.all(np.isfinite(c)) and c.min(initial=0.0) >= 0.0 and c.max(initial=0.0) <= 1.0):
         raise AssertionError("a confidence outside [0, 1] reached the writer")
     return np.rint(c * 255.0).astype(np.uint8)
+
+
+def check_steps_file(steps: Path, *, force: bool) -> None:
+    """In a folder of no run, a ``steps`` (steps.jsonl) that is no file of its own, which a run's appends would go
+    through (a link's target, a hard link's other names, a pipe's reader): an OutputError; ``force`` removes it."""
+    try:
+        st = steps.lstat()
+    except FileNotFoundError:
+        return
+    kind = stat.S_IFMT(st.st_mode)
+    if kind == stat.S_IFREG and st.st_nlink == 1:
+        return
+    if force and kind != stat.S_IFDIR:
+        return steps.unlink()  # the link or name itself, not the file it names
+    what = {stat.S_IFREG: f"a file of {st.st_nlink} names (a hard link)", stat.S_IFLNK: "a link", stat.S_IFDIR: "a folder",
+            stat.S_IFIFO: "a named pipe"}.get(kind, "a device or socket")
+    raise OutputError(f"{steps}: {what}, not a file of its own, where a run appends its steps; give another --out"
+                      + ("" if kind == stat.S_IFDIR else ", or --force to remove it (not what it names)"))
 
 
 def append_step(out: Path, step: dict) -> None:

@@ -15,15 +15,13 @@ either for a run that writes (resume or start over); :func:`read_state` reads ei
 from __future__ import annotations
 
 import math
-import os
-import stat
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Iterator
 
 from ..errors import InputError, OutputError
 from ..formats import KeyWrittenTwice, load_json_object, loads_json, resolved
-from .files import CONFIDENCE, STATE, STEPS
+from .files import CONFIDENCE, STATE, STEPS, check_steps_file
 
 if TYPE_CHECKING:
     from ..datasets.sources import Selection
@@ -223,8 +221,9 @@ def open_state(out: Path, identity: dict | None, *, force: bool, frames=None, al
         raise OutputError(f"{out}: an evaluation's folder (config.json, results.json or units/): the run's files would "
                           "mix with its report, --force or not; give another --out")
     out.mkdir(parents=True, exist_ok=True)
-    _steps_file(out / STEPS, force=force)
     state_path = out / STATE
+    if not (state_path.exists() or state_path.is_symlink()):  # a folder of no run: a steps.jsonl there is no run's
+        check_steps_file(out / STEPS, force=force)
     begun = (out / STEPS).is_file() and (out / STEPS).stat().st_size == 0  # a run killed at its start: steps.jsonl first, empty
     if not force and frames is not None and not (state_path.exists() or state_path.is_symlink() or begun):
         mine = (out, out / CONFIDENCE) if (identity or {}).get("confidence") else (out,)  # where it writes
@@ -261,24 +260,6 @@ def open_state(out: Path, identity: dict | None, *, force: bool, frames=None, al
         raise OutputError(f"{state_path}: its {field!r} is not as pcreg run writes it; use --force to start over")
     state["format"] = FORMAT  # the same layout, named from now on
     return state
-
-
-def _steps_file(steps: Path, *, force: bool) -> None:
-    """A ``steps`` (steps.jsonl) that is not a regular file, which a run's appends would go through (to a link's
-    target, or a pipe's reader): an OutputError; with ``force`` a link, pipe or device node is removed, not a folder."""
-    try:
-        mode = steps.lstat().st_mode
-    except FileNotFoundError:
-        return
-    if stat.S_ISREG(mode):
-        return
-    what = f"a link to {os.readlink(steps)}" if stat.S_ISLNK(mode) else {stat.S_IFDIR: "a folder", stat.S_IFIFO: "a named pipe"}.get(
-        stat.S_IFMT(mode), "a device or socket")
-    if force and not stat.S_ISDIR(mode):
-        steps.unlink()
-        return
-    remedy = "give another --out" + ("" if stat.S_ISDIR(mode) else ", or --force to remove it")
-    raise OutputError(f"{steps}: {what}, not a file: a run appends its steps to this file of its own; {remedy}")
 
 
 def _without_unused(run):
@@ -575,6 +556,9 @@ def unfinished_note(folder: Path, labelled: int, chosen: int | None) -> str | No
     if writer is not None:
         who = f" (pid {writer})" if writer else ""
         return f"{holds}: a pcreg run{who} is writing it now; what it labels later is not shown"
+    if unfinished is None and chosen is None:
+        return (f"{holds}; its run.json does not say whether the run labelled the video to its end (a run of an earlier "
+                "pcreg): the same pcreg run command says \"all frames already done\", or goes on from where it stopped")
     if not unfinished:
         return None
     end = ", which the run did not label to its end" if chosen is None else ""
@@ -586,8 +570,7 @@ def video_unfinished(folder: Path) -> bool | None:
     one): a run from one label image keeps ``video_end`` once decoding found their end
     (:func:`~pcreg.runs.video_file.labelled_to_end`); a run from key frames labels its stretches in order, the last
     one the frames after its last key frame to the video's end (``stop`` None, none when that is the last frame), so
-    it is done once that one is and no other is under way (``cursor``). None too for a run of an earlier pcreg, which
-    did not say (the same command tells: "all frames already done", or it goes on)."""
+    it is done once that one is and no other is under way (``cursor``); None too for an earlier pcreg's, which kept no end."""
     from .video_file import labelled_to_end
 
     try:

@@ -59,8 +59,10 @@ def truth_summary(steps: dict[int, dict], table) -> str:
                      for c in shown)
     more = "" if len(shown) == len(truth) else f", and {len(truth) - len(shown)} more classes in steps.jsonl"
     lowest = "" if len(shown) == len(truth) else f" (the {LISTED} lowest)"
-    return (f"\nIoU against the truth, each class's mean over the frames that show it (predicted from the confidence "
-            f"in brackets){lowest}: {each}{more}; the mean over all {len(truth)} classes "
+    scored = sum(isinstance(step.get("iou"), dict) for step in steps.values())  # a step of an earlier pcreg kept none
+    among = "" if scored == len(steps) else f", among the {scored} of the {len(steps)} frames whose step holds one"
+    return (f"\nIoU against the truth, each class's mean over the frames that show it{among} (predicted from the "
+            f"confidence in brackets){lowest}: {each}{more}; the mean over all {len(truth)} classes "
             f"{np.mean([v for v, _ in truth.values()]):.2f}")
 
 

@@ -35,11 +35,3 @@ def moved(module: str, names: dict[str, str], *, fallback: Callable[[str], Any] 
 
     return __getattr__
 
-
-def segments_0_2(n: int, keys) -> list[tuple[int | None, int | None, range]]:
-    """0.2.0's ``pcreg.pipeline.keyframes.segments``: the stretches between key frames, ``(earlier key or None,
-    later key or None, frames)`` in order, from :func:`pcreg.pipeline.engine.stretches` (the same frames)."""
-    from .pipeline.engine import stretches
-
-    return [(s.first, s.last, range(0 if s.first is None else s.first + 1, int(n) if s.stop is None else s.stop))
-            for s in stretches(keys, int(n))]

@@ -247,5 +247,14 @@ def _nearest(frames: np.ndarray, labelled: np.ndarray) -> np.ndarray:
     return np.minimum(np.abs(frames - after), np.abs(frames - before))
 
 
+def _segments_0_2(n: int, keys) -> list[tuple[int | None, int | None, range]]:
+    """0.2.0's ``pcreg.pipeline.keyframes.segments``: the stretches between key frames, ``(earlier key or None,
+    later key or None, frames)`` in order, from :func:`pcreg.pipeline.engine.stretches` (the same frames)."""
+    from .engine import stretches
+
+    return [(s.first, s.last, range(0 if s.first is None else s.first + 1, int(n) if s.stop is None else s.stop))
+            for s in stretches(keys, int(n))]
+
+
 if not TYPE_CHECKING:  # a module __getattr__ would be mypy's for every name: a misspelt one would pass
-    __getattr__ = moved(__name__, {"segments": "pcreg._moved:segments_0_2 pcreg.pipeline.engine.stretches (Stretch: first, last, stop)"})
+    __getattr__ = moved(__name__, {"segments": "pcreg.pipeline.keyframes:_segments_0_2 pcreg.pipeline.engine.stretches (Stretch: first, last, stop)"})

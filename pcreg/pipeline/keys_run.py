@@ -7,10 +7,9 @@ module, which loads it for 0.2.0's form.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import inspect
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from . import key_passes
 from .key_passes import HIDDEN

@@ -211,12 +211,12 @@ def check_source(state: dict, kind: str, source: Path, folder: Path) -> None:
     from .state import can_move
     from .video_file import check_labelled_video
 
-    if not source.exists() and not can_move(state, kind):  # begun before a run kept what it read of its inputs
-        raise InputError(f"{folder / STATE}: the run's {kind} {source} is gone (the frames are read from there); put it "
-                         "back there: this run was begun by an earlier pcreg, which did not keep what it read of its inputs, "
-                         "so it cannot be followed to a new place (pcreg run ... --force labels the frames again)")
     if not source.exists():
-        raise InputError(f"{folder / STATE}: the run's {kind} {source} is gone (the frames are read from there); moved with its project? the same "
-                         f"pcreg run with the {kind}'s new path and --out {shell_word(folder)} names the new places in run.json, and goes on from what was labelled")
+        gone = f"{folder / STATE}: the run's {kind} {source} is gone (the frames are read from there)"
+        if not can_move(state, kind):  # begun before a run kept what it read of its inputs
+            raise InputError(f"{gone}; put it back there: this run was begun by an earlier pcreg, which did not keep what it "
+                             "read of its inputs, so it cannot be followed to a new place (pcreg run ... --force labels the frames again)")
+        raise InputError(f"{gone}; moved with its project? the same pcreg run with the {kind}'s new path and --out {shell_word(folder)} "
+                         "names the new places in run.json, and goes on from what was labelled")
     if kind == "video":
         check_labelled_video(state, source, folder, "review")

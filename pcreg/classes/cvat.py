@@ -34,6 +34,7 @@ a folder holding only that folder); the ``__MACOSX/`` folder that macOS's Finder
 from __future__ import annotations
 
 import contextlib
+import os
 import re
 import stat
 import unicodedata
@@ -245,7 +246,7 @@ class CvatExport(contextlib.AbstractContextManager):
         """Whether the export holds ``name``: in a folder, any entry of that name (:meth:`read` refuses one that
         is no regular file, saying what it is)."""
         p = self._root / name
-        return (p.exists() or p.is_symlink()) if self._zip is None else name in self._members
+        return os.path.lexists(p) if self._zip is None else name in self._members
 
     def where(self, name: str) -> str:
         """How an error names a member: ``EXPORT.zip:NAME`` or the file's path."""

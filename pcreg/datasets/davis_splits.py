@@ -22,6 +22,7 @@ frame of a listed sequence is evaluated. ``--data davis:ROOT`` with a 2017 downl
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -89,7 +90,7 @@ def split_file(root: Path, resolution: str, split: str) -> Path | None:
     absent, the root's every sequence was evaluated in the split's place."""
     for sub in dict.fromkeys((resolution, "480p", "2016")):
         f = root / "ImageSets" / sub / f"{split}.txt"
-        if f.exists() or f.is_symlink():
+        if os.path.lexists(f):
             return f
     return None
 

@@ -15,6 +15,7 @@ either for a run that writes (resume or start over); :func:`read_state` reads ei
 from __future__ import annotations
 
 import math
+import os
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Iterator
@@ -222,20 +223,21 @@ def open_state(out: Path, identity: dict | None, *, force: bool, frames=None, al
                           "mix with its report, --force or not; give another --out")
     out.mkdir(parents=True, exist_ok=True)
     state_path = out / STATE
-    if not (state_path.exists() or state_path.is_symlink()):  # a folder of no run: a steps.jsonl there is no run's
+    has_run = os.path.lexists(state_path)  # a folder or a link in its place is no fresh start
+    if not has_run:  # a folder of no run: a steps.jsonl there is no run's
         check_steps_file(out / STEPS, force=force)
     begun = (out / STEPS).is_file() and (out / STEPS).stat().st_size == 0  # a run killed at its start: steps.jsonl first, empty
-    if not force and frames is not None and not (state_path.exists() or state_path.is_symlink() or begun):
+    if not force and frames is not None and not (has_run or begun):
         mine = (out, out / CONFIDENCE) if (identity or {}).get("confidence") else (out,)  # where it writes
         held = next((q for d in mine if d.is_dir() for q in sorted(d.iterdir())
                      if q.suffix.lower() == ".png" and frames.writes(q.stem)), None)
         if held is None and (out / STEPS).is_file():  # not empty (``begun``): a person's, as no run leaves it without run.json
             held = out / STEPS
-        held = held or next((out / n for n in also if (out / n).exists() or (out / n).is_symlink()), None)
+        held = held or next((out / n for n in also if os.path.lexists(out / n)), None)
         if held is not None:
             raise OutputError(f"{held}: this run would write over it, and {out} holds no run of pcreg's (no {STATE}); "
                               "give another --out, or --force to write over it")
-    if force or not (state_path.exists() or state_path.is_symlink()):  # a folder or a link in its place is no fresh start
+    if force or not has_run:
         return None
     try:
         state = load_json_object(state_path, keys_once=True)  # a key written twice: edited, not pcreg run's

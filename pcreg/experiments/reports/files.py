@@ -7,6 +7,7 @@ longer run is not left in the folder (and on the report page) beside the new num
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 #: The file of an output folder that names, one a line, the files its report wrote besides results.json.
@@ -25,7 +26,7 @@ def in_the_way(out: Path, experiment: str) -> Path | None:
     ``out`` holds no evaluation (no config.json beside a results.json, :data:`MANIFEST` or units/; a config.json alone
     may be anyone's): a person's own checks.md, say, no evaluation wrote; None when there is none."""
     def held(n: str) -> bool:
-        return (out / n).exists() or (out / n).is_symlink()
+        return os.path.lexists(out / n)
 
     if not out.is_dir() or held("run.json") or (held("config.json") and any(map(held, ("results.json", MANIFEST, "units")))):
         return None  # a run's folder (refused as one), or an evaluation's: its config.json beside its results or units

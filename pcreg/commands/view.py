@@ -297,15 +297,17 @@ def _other_recording(path: str, application: str, experiment: str) -> str | None
     return None
 
 
-def _review_note(folder: Path, review) -> str | None:
+def _review_note(folder: Path, review, *, web: bool) -> str | None:
     """What is said of an unfinished run (:func:`~pcreg.runs.state.unfinished_note`) over every frame it labelled, as
     the export counts them, and where the review (its frames in order from the first) stops short of them: a run from
-    key frames stopped between its stretches has labelled frames after one it has not labelled yet."""
+    key frames stopped between its stretches has labelled frames after one it has not labelled yet. The ``web`` page
+    shows what the run labels later when reloaded; the overlay video is written once."""
     from ..runs.state import read_state, run_frames, unfinished_note
 
     state, shown = read_state(folder), len(review.names)
     labelled = len(run_frames(state, folder)[1]) if "stretches" in state else shown  # read_review checked both
-    note = unfinished_note(folder, labelled, review.chosen)
+    later = "reload the page to see what it labels later" if web else "what it labels later is not shown"
+    note = unfinished_note(folder, labelled, review.chosen, later=later)
     if labelled <= shown:
         return note
     short = (f"the review shows the {shown} frame(s) labelled from the first frame on, up to the first not labelled yet, "
@@ -340,7 +342,7 @@ def _review(args: argparse.Namespace, runs: list[str]) -> int:
                          "(an unfinished run: the same pcreg run command goes on from where it stopped)")
     if args.overlay:  # the run's video, which the overlay is drawn from, is no file to write over, --force or not
         check_output(out, force=args.force, inputs=(review.source,))
-    note = _review_note(folder, review)
+    note = _review_note(folder, review, web=bool(args.web))
     if note:
         sys.stderr.write(f"pcreg: note: {note}\n")
     # where the video skips frames by its times (the run's frame N is not the file's), frames that decode with errors

@@ -7,7 +7,8 @@
   there is a confidence, whether any step predicts its classes' IoU (``ious``), where the video skips frames by its times (``gaps``: the note, the places and frames
   missing; None without one), the notes of what reading the frames met (``notes``: run.json's lines, transparent
   pixels or a turn to interlaced; ``[]`` without one), the class table (each known class's name, colour and whether the run's frames show it,
-  for the legend) and the frames' size;
+  for the legend) and the frames' size; read again when the run's run.json or steps.jsonl changed since (a run still
+  being written: the page reloaded shows the frames labelled since, :meth:`ReviewServer.current`);
 - ``/overlay/T.jpg``: frame ``T`` (its position in the run) with its labels drawn over it
   (:func:`pcreg.review.overlay`), rendered when asked for and kept for the next time (a few hundred), drawn again
   when its label image or confidence map changes (by their time and size; the browser asks again each time with the
@@ -28,6 +29,7 @@ import re
 import threading
 from collections import OrderedDict
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -82,6 +84,13 @@ def _stat(path: Path | None) -> tuple[int, int] | None:
     return None if st is None else (st.st_mtime_ns, st.st_size)
 
 
+def _run_stamp(folder: Path) -> tuple:
+    """The (mtime_ns, size) of a run's run.json and steps.jsonl (:func:`_stat`)."""
+    from ..runs.files import STATE, STEPS
+
+    return _stat(folder / STATE), _stat(folder / STEPS)
+
+
 def _number(name: str, suffix: str, n: int) -> int | None:
     """The frame number of a request's file name (``NUMBER`` then ``suffix``, ASCII digits only) when it is one of
     ``n`` frames, else None: a name of thousands of digits is no frame (not ``int()``'s limit raised in the server),
@@ -121,6 +130,7 @@ class ReviewServer:
             else:
                 _remove_others(cache)
         self.images = FrameImages(review, cache)
+        self._read = _run_stamp(review.folder)  # the run's files as the review was read
         self._static = viz_dir()
         self._rendered: OrderedDict[tuple[str, int, tuple], bytes] = OrderedDict()
         self._lock = threading.Lock()
@@ -134,10 +144,34 @@ class ReviewServer:
 
     # -- what the page asks for -------------------------------------------------------------------
 
+    def current(self) -> Any:
+        """The run's review as its files are now (a :class:`pcreg.review.RunReview`): read again when its run.json or
+        steps.jsonl changed since it was read, a run that ``pcreg run`` goes on writing while the page is served (a
+        reload of the page shows the frames labelled since); the review as it was when the new one cannot be read or
+        is of another source (a run started over with other inputs: ``pcreg view`` started again shows it)."""
+        from ..review import FrameImages, read_review
+
+        with self._lock:
+            stamp = _run_stamp(self.review.folder)
+            if stamp == self._read:
+                return self.review
+            self._read = stamp
+            try:
+                new = read_review(self.review.folder)
+            except InputError:
+                return self.review
+            old = self.review
+            if (new.kind, new.source) != (old.kind, old.source):  # a video's decoded frames are kept by its path
+                return old
+            self.images.close()  # its decoding stopped before the next one reads the cache folder
+            self.images = FrameImages(new, self.images.cache)
+            self.review, self._shown = new, None
+            return new
+
     def review_json(self) -> bytes:
         from ..review import LOW_CONFIDENCE, shown_classes
 
-        r = self.review
+        r = self.current()
         with self._lock:
             if self._shown is None:  # the label files read once, when the page first asks
                 self._shown = frozenset(shown_classes(r))
@@ -229,7 +263,6 @@ class ReviewServer:
     def _handler(self):
         server = self
         static = {f.name: f for f in self._static.iterdir() if f.is_file()}
-        n = len(self.review.names)
 
         class Handler(QuietHandler):
             def do_GET(self) -> None:
@@ -242,6 +275,7 @@ class ReviewServer:
                     if path == "/review.json":
                         return self._send(200, "application/json", server.review_json())
                     what, _, name = path.strip("/").partition("/")
+                    n = len(server.review.names)
                     if what == "classes" and (t := _number(name, ".json", n)) is not None:
                         try:
                             body = server.class_json(t)

@@ -542,10 +542,10 @@ def frames_chosen(run: dict) -> int | None:
         return None
 
 
-def unfinished_note(folder: Path, labelled: int, chosen: int | None) -> str | None:
+def unfinished_note(folder: Path, labelled: int, chosen: int | None, *, later: str = "what it labels later is not shown") -> str | None:
     """The note (said on stderr after ``pcreg: note:``) that says a run is unfinished when it labelled fewer of its ``chosen`` frames than there
-    are, and whether a command is writing it now (:func:`~pcreg.outputs.writer_of`) or it stopped; None when
-    it labelled them all or the count is not known."""
+    are, and whether a command is writing it now (:func:`~pcreg.outputs.writer_of`; then ending in ``later``) or it
+    stopped; None when it labelled them all or the count is not known."""
     from ..outputs import writer_of
 
     if chosen is None:  # a video: how many frames it holds is known once a run decoded it to their end
@@ -557,7 +557,7 @@ def unfinished_note(folder: Path, labelled: int, chosen: int | None) -> str | No
     writer = writer_of(folder)
     if writer is not None:
         who = f" (pid {writer})" if writer else ""
-        return f"{holds}: a pcreg run{who} is writing it now; what it labels later is not shown"
+        return f"{holds}: a pcreg run{who} is writing it now; {later}"
     if unfinished is None and chosen is None:
         return (f"{holds}; its run.json does not say whether the run labelled the video to its end (a run of an earlier "
                 "pcreg): the same pcreg run command says \"all frames already done\", or goes on from where it stopped")

@@ -2,4 +2,5 @@
 
 from pcreg.cli import main
 
-raise SystemExit(main())
+if __name__ == "__main__":  # imported (by a documentation tool walking the package), it runs nothing
+    raise SystemExit(main())

@@ -152,7 +152,9 @@ def _shield_first_calls(dispatcher):
     instead of exit 130."""
     from ._signals import _shielded, check_interrupted
 
-    compile_for_args = dispatcher._compile_for_args
+    compile_for_args = getattr(dispatcher, "_compile_for_args", None)
+    if compile_for_args is None:  # NUMBA_DISABLE_JIT=1: numba's njit gave the Python function back, nothing compiles
+        return dispatcher
 
     def compile_shielded(*args, **kws):
         if _compiles(dispatcher):

@@ -381,10 +381,26 @@ def _main(argv: list[str] | None) -> int:
     except OSError as exc:  # the file system refused (a full disk, a folder where a file goes, permissions)
         sys.stderr.write(f"pcreg: error: {_os_error(exc)}{_full_disk_resumes(str(exc), args)}\n")
         return 2
-    except Exception as exc:  # noqa: BLE001 - memory run out (exit 2), or anything else: a bug in pcreg (exit 1)
-        return 2 if _said_out_of_memory(exc, args) else _bug(exc, args)
+    except Exception as exc:  # noqa: BLE001 - memory run out or an extra not installed (exit 2), else a bug (exit 1)
+        return 2 if _said_out_of_memory(exc, args) or _said_not_installed(exc) else _bug(exc, args)
     finally:
         _end(argv is None and interrupted(), saved_limit, previous, program=argv is None)
+
+
+#: The libraries of pcreg's extras that a command may need, each with how to install it.
+EXTRAS = {"open3d": "pip install 'pcreg[cpu]' (or 'pcreg[cuda]' for Open3D's CUDA build)",
+          "dask": "pip install 'pcreg[distributed]'", "distributed": "pip install 'pcreg[distributed]'"}
+
+
+def _said_not_installed(exc: BaseException) -> bool:
+    """Say, in one line, that the command needs a library of one of pcreg's extras that is not installed (Open3D, of
+    ``pcreg[cpu]``: pcreg installed without it), and whether it did: any other missing module is a bug."""
+    name = getattr(exc, "name", None) if isinstance(exc, ModuleNotFoundError) else None
+    install = EXTRAS.get((name or "").split(".")[0])
+    if install is None:
+        return False
+    sys.stderr.write(f"pcreg: error: this command needs {name}, which is not installed: {install}\n")
+    return True
 
 
 def _os_error(exc: OSError) -> str:

@@ -42,6 +42,33 @@ def warm_up() -> None:
         for flow in ((zeros, zeros), None):
             trusted_fusion(STREAM_TRUST, 1.0, zeros, zeros, zeros, confidence, flow)
     _warm_classes(shape)
+    _warm_read_only()
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    """A read-only copy of ``a``: numba compiles a kernel apart for read-only arrays."""
+    a = a.copy()
+    a.setflags(write=False)
+    return a
+
+
+def _warm_read_only() -> None:
+    """The kernels a stream calls with read-only arrays (a key frame's features and field, kept, the weights of a
+    carried prior, a motion's matrix), compiled for those too: each is a signature of its own, which a ``pcreg run``
+    after ``python -m pcreg.kernels`` compiled at its first step."""
+    from .pipeline import _class_kernels as k
+    from .registration.dense.window import match_window
+    from .registration.motion import field_from_matrix
+
+    field_from_matrix(_read_only(np.eye(3)), (4, 4))
+    level = np.zeros((8, 8, 3), np.float32)
+    samples = np.full((2, 2), 4.0)
+    match_window(_read_only(level), level, samples, samples, np.zeros((2, 3), np.float32), radius=1, lam=1.0)
+    scores, w = np.zeros((4, 4, 3), np.float32), np.ones((4, 4), np.float32)
+    ro = _read_only(w)
+    k.fuse_classes(scores, ro, scores, ro, scores)
+    k.fuse_and_mark(scores, ro, scores, ro, scores, w, np.zeros(3, np.float32))
+    k.remap_labels(np.zeros((4, 4), np.uint8), np.zeros((256, 5), np.float32), _read_only(np.zeros((4, 4, 2), np.float32)))
 
 
 def _warm_classes(shape: tuple[int, int]) -> None:

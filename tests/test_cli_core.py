@@ -620,3 +620,11 @@ def test_force_says_what_it_does_on_each_command():
     for path in (("run",), ("evaluate", "stream"), ("evaluate", "rotation"), ("evaluate", "sequence")):
         assert force_help(*path).startswith("start over: discard what an earlier run in --out finished"), path
     assert force_help("register") == "overwrite existing output files"
+
+
+def test_importing_pcreg_main_runs_no_command():
+    """``import pcreg.__main__`` (a documentation tool or ``pkgutil.walk_packages`` walking the package) ran the command
+    line, which ended the importing process with a usage error (``SystemExit(2)``)."""
+    run = subprocess.run([sys.executable, "-c", "import pcreg.__main__; print('imported')"], capture_output=True,
+                         text=True, timeout=300)
+    assert run.returncode == 0 and run.stdout == "imported\n", run.stderr

@@ -34,6 +34,22 @@ def test_an_unknown_numba_threading_layer_is_bad_input(tmp_path, monkeypatch, ca
     assert len(err) == 1 and "NUMBA_THREADING_LAYER='bogus'" in err[0] and "workqueue" in err[0]
 
 
+def test_a_numba_threading_layer_that_cannot_load_is_bad_input(tmp_path, monkeypatch, capsys):
+    """``NUMBA_THREADING_LAYER=tbb`` (or ``safe``) without TBB's library passed the check of its name, then ended the
+    command at its first parallel kernel as "a bug in pcreg" (exit 1), or as a refused registration (exit 3)."""
+    from pcreg.registration import nn
+
+    monkeypatch.setitem(nn._LAYER_NEEDS, "tbb", ("no_such_pool",))  # as TBB's library absent, wherever it is installed
+    monkeypatch.setenv("NUMBA_THREADING_LAYER", "tbb")
+    img = tmp_path / "a.png"
+    cv2.imwrite(str(img), np.zeros((64, 64, 3), np.uint8))
+    assert main(["register", str(img), str(img)]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and "NUMBA_THREADING_LAYER='tbb': numba cannot load it" in err[0] and "workqueue" in err[0]
+    monkeypatch.setenv("NUMBA_THREADING_LAYER", "forksafe")  # numba's own workqueue will do: taken
+    assert nn._layer_missing("forksafe") is None and nn._layer_missing("workqueue") is None
+
+
 @pytest.mark.parametrize("given", ["0", "-2", "abc", " "])
 def test_a_bad_numba_thread_count_is_one_line_before_any_module_loads(tmp_path, monkeypatch, capsys, given):
     """NUMBA_NUM_THREADS=0 ended every command, --version included, in numba's ValueError of 50 lines (exit 1): numba

@@ -256,3 +256,17 @@ def test_the_kernels_compile_stopped_by_ctrl_c_ends_in_one_line_and_130(tmp_path
     assert err.splitlines() == ["pcreg: interrupted while compiling the kernels (those compiled are kept; python -m "
                                 "pcreg.kernels, or make, goes on)"], err
     assert out == ""
+
+
+def test_numba_disable_jit_runs_the_kernels_as_python(tmp_path):
+    """``NUMBA_DISABLE_JIT=1`` (numba's switch for debugging a kernel in Python): pcreg's first-call shield looked up
+    numba's compile-on-call on what njit gave back, the Python function itself, and every command, ``--version``
+    included, ended in a 44-line traceback."""
+    env = {**os.environ, "NUMBA_DISABLE_JIT": "1"}
+    code = ("import numpy as np; from pcreg.registration.motion import field_from_matrix; "
+            "print(field_from_matrix(np.eye(3), (4, 5))[3, 4].tolist())")
+    run = subprocess.run([sys.executable, "-c", code], env=env, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0 and run.stdout.strip() == "[4.0, 3.0]", run.stderr
+    version = subprocess.run([sys.executable, "-m", "pcreg", "--version"], env=env, cwd=tmp_path, capture_output=True,
+                             text=True, timeout=300)
+    assert version.returncode == 0 and version.stdout.startswith("pcreg "), version.stderr

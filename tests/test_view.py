@@ -716,3 +716,24 @@ def test_the_recording_server_keeps_room_for_the_whole_recording(tmp_path):
     total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
     assert server_memory(small) == f"{min(10**9, int(0.75 * total)) // 10**6}MB"
     assert server_memory(large) == f"{min(6 * 10**9, int(0.75 * total)) // 10**6}MB"
+
+
+@pytest.mark.slow
+def test_a_screenshot_with_tmpdir_missing_is_taken_and_leaves_nothing_there(small_recording, tmp_path):
+    """``TMPDIR`` naming a folder that does not exist stopped the headless viewer ("the headless viewer stopped: Report
+    bugs: ..." the cause, rerun's catalog folder, lost); and each screenshot left an empty ``rerun-data-PID-*`` folder in
+    ``TMPDIR``. The viewer's files go to a folder of its own, removed when it stops."""
+    import os
+    import subprocess
+
+    if sys.platform.startswith("linux") and not view.vulkan_icds():
+        pytest.skip("no Vulkan driver (ICD) on this machine: install Debian's mesa-vulkan-drivers for lavapipe")
+    there = tmp_path / "tmp"
+    there.mkdir()
+    for tmpdir in (tmp_path / "missing", there):
+        out = tmp_path / f"{tmpdir.name}.png"
+        env = {**os.environ, "TMPDIR": str(tmpdir)}
+        run = subprocess.run([sys.executable, "-m", "pcreg", "view", str(small_recording), "--screenshot", str(out)],
+                             env=env, capture_output=True, text=True, timeout=600)
+        assert run.returncode == 0 and out.is_file(), run.stderr
+    assert list(there.iterdir()) == [] and not (tmp_path / "missing").exists()

@@ -112,7 +112,11 @@ def headless(recording: str | os.PathLike, *, size: str = "1600x900", viewer: st
     port = free_port("127.0.0.1")
     env = dict(os.environ)
     env.setdefault("WGPU_BACKEND", "vulkan")
-    env.setdefault("XDG_RUNTIME_DIR", str(Path(os.environ.get("TMPDIR", "/tmp"))))
+    # the viewer's own files (its catalog, rerun-data-PID-*) in a folder of its own, removed when it stops: they were
+    # left in TMPDIR, and a TMPDIR that does not exist stopped the viewer (Python's folder is one that does)
+    files = tempfile.TemporaryDirectory(prefix="pcreg-viewer-", ignore_cleanup_errors=True)
+    env["TMPDIR"] = files.name
+    env.setdefault("XDG_RUNTIME_DIR", files.name)
     cmd = [binary, "--headless", "--bind", "127.0.0.1", "--port", str(port), "--hide-welcome-screen",
            "--window-size", size, "--renderer", "vulkan"]
     started = time.monotonic()
@@ -146,6 +150,7 @@ def headless(recording: str | os.PathLike, *, size: str = "1600x900", viewer: st
         raise ViewerError(f"the viewer failed: {str(exc).strip().splitlines()[0] if str(exc).strip() else exc}") from None
     finally:
         _stop(proc)
+        files.cleanup()
 
 
 def screenshot(

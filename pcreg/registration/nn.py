@@ -99,6 +99,33 @@ def check_threading_layer() -> None:
 
         raise InputError(f"NUMBA_THREADING_LAYER={given!r} is not a numba threading layer; choose one of "
                          f"{', '.join(THREADING_LAYERS)} or unset it")
+    why = _layer_missing(given)
+    if why is not None:
+        from ..errors import InputError
+
+        raise InputError(f"NUMBA_THREADING_LAYER={given!r}: numba cannot load it on this machine ({why}); "
+                         "unset it, or choose workqueue")
+
+
+#: The libraries of numba's threading layers that a ``NUMBA_THREADING_LAYER`` needs, one of them (numba's
+#: ``safe`` is TBB alone, ``threadsafe`` TBB or OpenMP; ``forksafe`` and ``default`` take numba's own workqueue too).
+_LAYER_NEEDS = {"tbb": ("tbbpool",), "safe": ("tbbpool",), "threadsafe": ("tbbpool", "omppool"), "omp": ("omppool",)}
+
+
+def _layer_missing(given: str | None) -> str | None:
+    """Why numba cannot load the threading layer ``given`` names (TBB's library not installed: its ImportError), or
+    None: it can, or needs none. The library is loaded, not started (no thread before a fork)."""
+    import importlib
+
+    said = None
+    for module in _LAYER_NEEDS.get(given or "", ()):
+        try:
+            importlib.import_module(f"numba.np.ufunc.{module}")
+        except ImportError as exc:
+            said = said or str(exc)
+        else:
+            return None
+    return said
 
 
 #: True in a process forked after its parent's OpenMP threads started (:func:`can_thread`): a fact about

@@ -66,8 +66,9 @@ def _warm_read_only() -> None:
     match_window(_read_only(level), level, samples, samples, np.zeros((2, 3), np.float32), radius=1, lam=1.0)
     scores, w = np.zeros((4, 4, 3), np.float32), np.ones((4, 4), np.float32)
     ro = _read_only(w)
-    k.fuse_classes(scores, ro, scores, ro, scores)
-    k.fuse_and_mark(scores, ro, scores, ro, scores, w, np.zeros(3, np.float32))
+    for w2, l2 in ((ro, scores), (None, None)):
+        k.fuse_classes(scores, ro, scores, w2, l2)
+        k.fuse_and_mark(scores, ro, scores, w2, l2, w, np.zeros(3, np.float32))
     k.remap_labels(np.zeros((4, 4), np.uint8), np.zeros((256, 5), np.float32), _read_only(np.zeros((4, 4, 2), np.float32)))
 
 

@@ -275,3 +275,25 @@ def test_alongside_waits_for_the_sides_before_an_error_goes_on():
     with pytest.raises(ValueError, match="here"):
         _threads.alongside(here, side, lambda: None)
     assert finished == [1]
+
+
+def test_an_image_cloud_is_the_same_on_one_opencv_thread_as_on_two(shared_data):
+    """On one OpenCV thread (a one-CPU machine, ``taskset``, ``cv2.setNumThreads(1)``) cv::Canny hands the edge cloud's
+    Canny to IPP, which leaves out the pixels exactly at a threshold: this frame had 17,483 edge points against 17,626,
+    and ``pcreg register`` refused (exit 3) a pair it trusted on two CPUs. The call runs without IPP, in its thread
+    alone: the same points on any thread count, and IPP left as it was for the rest."""
+    import cv2
+
+    image = cv2.imread(str(shared_data / "camvid" / "0001TP" / "images" / "0001TP_006690.png"))[:, :, ::-1].copy()
+    threads, ipp = cv2.getNumThreads(), cv2.ipp.useIPP()
+    clouds = []
+    try:
+        for n in (1, 2, 3):
+            cv2.setNumThreads(n)
+            clouds.append(pcreg.image_cloud(image))
+            assert cv2.ipp.useIPP() == ipp
+    finally:
+        cv2.setNumThreads(threads)
+    assert len(clouds[0].points) == 17626
+    for cloud in clouds[1:]:
+        assert np.array_equal(cloud.points, clouds[0].points)

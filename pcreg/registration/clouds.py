@@ -232,8 +232,16 @@ def _detect(image: np.ndarray, *, sampler: str = "canny", valid: np.ndarray | No
         # Shielded: cv2 reaches this (dx, dy) form after failing its first form, whose error it reads with
         # PyObject_Str, which runs a pending signal's handler; the KeyboardInterrupt raised there made it NULL,
         # which cv2 does not check (SIGSEGV instead of exit 130). Raised here instead, once Canny returns.
+        # Without IPP, in this thread alone (OpenCV keeps the switch per thread): on one OpenCV thread cv::Canny hands
+        # this call to IPP, which leaves out the pixels exactly at a threshold that OpenCV's own Canny (two threads or
+        # more) keeps, and the percentile puts some there in every image; a one-CPU machine found fewer edges.
         with _shielded():
-            edges = cv2.Canny(dx, dy, 0.5 * high, high, L2gradient=True)
+            ipp = cv2.ipp.useIPP()
+            cv2.ipp.setUseIPP(False)
+            try:
+                edges = cv2.Canny(dx, dy, 0.5 * high, high, L2gradient=True)
+            finally:
+                cv2.ipp.setUseIPP(ipp)
         check_interrupted()
         keep = edges > 0
     elif sampler == "gradient":

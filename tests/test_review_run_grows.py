@@ -1,7 +1,7 @@
 """``pcreg view RUN --web`` while ``pcreg run`` goes on writing the run: the page reloaded shows the frames labelled
 since it was served (the review was read once, when the command started, and a reload showed the same frames for as
-long as the server ran). A run.json that cannot be read, or a run started over on another source, leaves the page
-showing what it showed."""
+long as the server ran). A run.json that cannot be read leaves the page showing what it showed; a run started over,
+on another source too, shows as it is now."""
 
 from __future__ import annotations
 
@@ -84,7 +84,9 @@ def test_a_run_json_that_cannot_be_read_leaves_the_page_as_it_was(tmp_path):
         assert _get(server.url + "overlay/2.jpg")[0] == 200
 
 
-def test_a_run_started_over_on_another_source_leaves_the_page_as_it_was(tmp_path):
+def test_a_run_started_over_on_another_source_shows_as_it_is_now(tmp_path):
+    """The run --force'd onto another source while served: the page showed the first source's frames with the new
+    run's labels drawn over them (the names alike), and said nothing."""
     from pcreg.recording.review import ReviewServer
     from pcreg.review import read_review
 
@@ -96,6 +98,39 @@ def test_a_run_started_over_on_another_source_leaves_the_page_as_it_was(tmp_path
     for f in sorted(source.iterdir())[:5]:
         (other / f.name).write_bytes(f.read_bytes())
     with ReviewServer(read_review(out), web_port=0) as server:
-        names = _frames(server)
+        assert len(_frames(server)) == 3
         _run(other, labels, out, "--force")
-        assert _frames(server) == names and server.review.source == source
+        assert len(_frames(server)) == 5 and server.review.source == other
+        assert _get(server.url + "frame/4.jpg")[0] == 200
+
+
+def test_frames_asked_for_while_the_page_reloads_are_drawn(tmp_path):
+    """A video run read again (a reload) while frames were being decoded for other requests: those were answered
+    500 ("frame N was not decoded"), the decoding they waited for stopped under them."""
+    import os
+    import shutil
+    import threading
+
+    from pcreg.recording.review import ReviewServer
+    from pcreg.review import read_review
+
+    frames = pcreg.synthetic("syn1a", 24, 0, width=96, height=72)
+    cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
+    video = write_video(tmp_path / "clip.mp4", frames)
+    out = tmp_path / "out"
+    _run(video, tmp_path / "key.png", out)
+    failed = []
+    for i in range(4):
+        shutil.rmtree(out / ".pcreg-review", ignore_errors=True)
+        with ReviewServer(read_review(out), web_port=0) as server:
+            asked = {}
+            threads = [threading.Thread(target=lambda t=t: asked.__setitem__(t, _get(f"{server.url}overlay/{t}.jpg")))
+                       for t in (5, 15, 23)]
+            for thread in threads:
+                thread.start()
+            os.utime(out / "run.json", ns=(i + 1, i + 1))  # as pcreg run writes it again after a step
+            assert len(_frames(server)) == 24
+            for thread in threads:
+                thread.join()
+            failed += [(t, status, body[:120]) for t, (status, body) in asked.items() if status != 200]
+    assert not failed, failed

@@ -22,7 +22,6 @@ frame of a listed sequence is evaluated. ``--data davis:ROOT`` with a 2017 downl
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -90,7 +89,7 @@ def split_file(root: Path, resolution: str, split: str) -> Path | None:
     absent, the root's every sequence was evaluated in the split's place."""
     for sub in dict.fromkeys((resolution, "480p", "2016")):
         f = root / "ImageSets" / sub / f"{split}.txt"
-        if os.path.lexists(f):
+        if f.exists() or f.is_symlink():  # (exists() raises where the folder cannot be read: said, not taken for none)
             return f
     return None
 

@@ -108,8 +108,6 @@ class ReviewServer:
     manager. ``url`` is the page to open."""
 
     def __init__(self, review, *, bind: str = "127.0.0.1", web_port: int = 9090, cache: Path | None = None) -> None:
-        from ..review import CACHE, FrameImages
-
         self.review = review
         probe = check_bind(bind)
         try:
@@ -117,19 +115,9 @@ class ReviewServer:
         except OSError as exc:
             raise InputError(f"--bind {bind}: cannot listen there ({exc.strerror or exc})") from None
         check_port("--web-port", web_port, probe, bind)
-        self._tmp = None
-        if review.kind == "video" and cache is None:
-            cache = review.folder / CACHE / _video_key(review.source)
-            try:
-                cache.mkdir(parents=True, exist_ok=True)
-            except OSError:  # a run's folder that is not writable: the decoded frames last as long as the server
-                import tempfile
-
-                self._tmp = tempfile.TemporaryDirectory(prefix="pcreg-review-")
-                cache = Path(self._tmp.name)
-            else:
-                _remove_others(cache)
-        self.images = FrameImages(review, cache)
+        self._tmp: Any = None  # a tempfile.TemporaryDirectory, made when the run's folder is not writable
+        self._cache = cache  # None: a video's decoded frames in the run's folder, by the video's path
+        self.images = self._frame_images(review)
         self._read = _run_stamp(review.folder)  # the run's files as the review was read
         self._static = viz_dir()
         self._rendered: OrderedDict[tuple[str, int, tuple], bytes] = OrderedDict()
@@ -142,14 +130,36 @@ class ReviewServer:
             self.images.close()
             raise
 
+    def _frame_images(self, review) -> Any:
+        """The frames of ``review``'s source (:class:`pcreg.review.FrameImages`): a video's decoded into the run's
+        ``.pcreg-review/`` folder under a name of the video's path, size and time (the folders of its other versions
+        removed), or into a folder that lasts as long as the server where the run's folder is not writable."""
+        from ..review import CACHE, FrameImages
+
+        cache = self._cache
+        if review.kind == "video" and cache is None:
+            cache = review.folder / CACHE / _video_key(review.source)
+            try:
+                cache.mkdir(parents=True, exist_ok=True)
+            except OSError:  # a run's folder that is not writable: the decoded frames last as long as the server
+                import tempfile
+
+                if self._tmp is None:
+                    self._tmp = tempfile.TemporaryDirectory(prefix="pcreg-review-")
+                cache = Path(self._tmp.name) / _video_key(review.source)
+                cache.mkdir(exist_ok=True)
+            else:
+                _remove_others(cache)
+        return FrameImages(review, cache)
+
     # -- what the page asks for -------------------------------------------------------------------
 
     def current(self) -> Any:
         """The run's review as its files are now (a :class:`pcreg.review.RunReview`): read again when its run.json or
         steps.jsonl changed since it was read, a run that ``pcreg run`` goes on writing while the page is served (a
-        reload of the page shows the frames labelled since); the review as it was when the new one cannot be read or
-        is of another source (a run started over with other inputs: ``pcreg view`` started again shows it)."""
-        from ..review import FrameImages, read_review
+        reload of the page shows the frames labelled since; a run started over, on its source or another, shows as
+        it is now); the review as it was when the new one cannot be read."""
+        from ..review import read_review
 
         with self._lock:
             stamp = _run_stamp(self.review.folder)
@@ -160,13 +170,23 @@ class ReviewServer:
                 new = read_review(self.review.folder)
             except InputError:
                 return self.review
-            old = self.review
-            if (new.kind, new.source) != (old.kind, old.source):  # a video's decoded frames are kept by its path
-                return old
-            self.images.close()  # its decoding stopped before the next one reads the cache folder
-            self.images = FrameImages(new, self.images.cache)
+            self.images.close()  # its decoding stopped before the next one writes the cache folder
+            self.images = self._frame_images(new)
             self.review, self._shown = new, None
             return new
+
+    def _frame(self, t: int):
+        """Frame ``t`` (RGB), from the frames as they are now: one asked for while a reload swapped them
+        (:meth:`current`, which stops the earlier ones' decoding) is asked of the new ones."""
+        images = self.images
+        try:
+            return images[t]
+        except InputError:
+            with self._lock:  # held by a reload until the new frames are in place
+                now = self.images
+            if now is images:
+                raise
+            return now[t]
 
     def review_json(self) -> bytes:
         from ..review import LOW_CONFIDENCE, shown_classes
@@ -176,7 +196,7 @@ class ReviewServer:
             if self._shown is None:  # the label files read once, when the page first asks
                 self._shown = frozenset(shown_classes(r))
             shown = self._shown
-        frames = [{"name": n, "key": t in r.keys, "error": r.errors[t], "no_confidence": self._no_confidence(t),
+        frames = [{"name": n, "key": t in r.keys, "error": r.errors[t], "no_confidence": self._no_confidence(r, t),
                    "truth_error": None if (truth := r.truth_at(t)) is None else truth.error} for t, n in enumerate(r.names)]
         suggested = [{"frame": t, "name": r.names[t], "error": e} for t, e in r.suggested]
         return json.dumps({
@@ -191,12 +211,11 @@ class ReviewServer:
             "notes": list(r.kept_notes()),
         }, allow_nan=False).encode()
 
-    def _no_confidence(self, t: int) -> str | None:
+    def _no_confidence(self, r, t: int) -> str | None:
         """The confidence map that frame ``t`` lacks in a run with ``--confidence`` (``confidence/STEM.png``,
         drawn without the hatching), None when it has one or needs none."""
         from ..runs.files import CONFIDENCE
 
-        r = self.review
         if not r.confidence or t in r.keys or r.confidence_path(t) is not None:
             return None
         return f"{CONFIDENCE}/{r.stems[t]}.png"
@@ -248,7 +267,7 @@ class ReviewServer:
             if key in self._rendered:
                 self._rendered.move_to_end(key)
                 return self._rendered[key]
-        image = self.images[t]
+        image = self._frame(t)
         drawn = read_overlay(self.review, t, image) if what == "overlay" else image
         ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(drawn[:, :, ::-1]), [cv2.IMWRITE_JPEG_QUALITY, 90])
         if not ok:
@@ -293,6 +312,8 @@ class ReviewServer:
                             return self._unreadable(exc, server.gone(t, what))
                         return self._send(200, "image/jpeg", body, etag=etag)
                     self._send(404, "text/plain", b"not found\n")
+                except IndexError:  # a frame past the run's end, the run read again shorter (--force) while asked for
+                    self._send(404, "text/plain", b"not found: the run holds fewer frames now (reload the page)\n")
                 except (BrokenPipeError, ConnectionResetError):  # the browser went away
                     pass
 

@@ -50,6 +50,21 @@ def test_a_numba_threading_layer_that_cannot_load_is_bad_input(tmp_path, monkeyp
     assert nn._layer_missing("forksafe") is None and nn._layer_missing("workqueue") is None
 
 
+def test_a_tbb_too_old_for_numba_is_refused(monkeypatch):
+    """A TBB older than numba takes (2021 update 5, say) imports, and numba then refuses it at its first parallel
+    kernel: the check asks numba's own test of the version."""
+    from numba.np.ufunc import parallel
+
+    from pcreg.registration import nn
+
+    def too_old():
+        raise ImportError("Problem with TBB. Reason: Found TBB_INTERFACE_VERSION = 12050")
+
+    monkeypatch.setattr(parallel, "_check_tbb_version_compatible", too_old)
+    assert "12050" in (nn._layer_missing("tbb") or "") and "12050" in (nn._layer_missing("safe") or "")
+    assert nn._layer_missing("workqueue") is None
+
+
 @pytest.mark.parametrize("given", ["0", "-2", "abc", " "])
 def test_a_bad_numba_thread_count_is_one_line_before_any_module_loads(tmp_path, monkeypatch, capsys, given):
     """NUMBA_NUM_THREADS=0 ended every command, --version included, in numba's ValueError of 50 lines (exit 1): numba

@@ -117,9 +117,17 @@ def _layer_missing(given: str | None) -> str | None:
     None: it can, or needs none. The library is loaded, not started (no thread before a fork)."""
     import importlib
 
+    import warnings
+
+    from numba.np.ufunc import parallel
+
     said = None
     for module in _LAYER_NEEDS.get(given or "", ()):
         try:
+            if module == "tbbpool" and hasattr(parallel, "_check_tbb_version_compatible"):
+                with warnings.catch_warnings():  # numba's own refusal of a TBB too old, without its warning
+                    warnings.simplefilter("ignore")
+                    parallel._check_tbb_version_compatible()
             importlib.import_module(f"numba.np.ufunc.{module}")
         except ImportError as exc:
             said = said or str(exc)

@@ -93,16 +93,14 @@ THREADING_LAYERS = ("default", "safe", "forksafe", "threadsafe", "omp", "tbb", "
 def check_threading_layer() -> None:
     """Refuse a ``NUMBA_THREADING_LAYER`` numba does not know (an :class:`~pcreg.errors.InputError` now,
     rather than numba's error at the first parallel kernel)."""
+    from ..errors import InputError
+
     given = os.environ.get("NUMBA_THREADING_LAYER")
     if given is not None and given not in THREADING_LAYERS:
-        from ..errors import InputError
-
         raise InputError(f"NUMBA_THREADING_LAYER={given!r} is not a numba threading layer; choose one of "
                          f"{', '.join(THREADING_LAYERS)} or unset it")
     why = _layer_missing(given)
     if why is not None:
-        from ..errors import InputError
-
         raise InputError(f"NUMBA_THREADING_LAYER={given!r}: numba cannot load it on this machine ({why}); "
                          "unset it, or choose workqueue")
 
@@ -116,7 +114,6 @@ def _layer_missing(given: str | None) -> str | None:
     """Why numba cannot load the threading layer ``given`` names (TBB's library not installed: its ImportError), or
     None: it can, or needs none. The library is loaded, not started (no thread before a fork)."""
     import importlib
-
     import warnings
 
     from numba.np.ufunc import parallel
